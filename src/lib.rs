@@ -1,0 +1,44 @@
+//! dispdec: mesh decimation for displacement mapping (Collins & Hilton), with the guarantee
+//! checked.
+//!
+//! Modules, one concern each:
+//! - [`mesh`]: mesh types, OBJ/PLY input, input checks, OBJ output;
+//! - [`topology`]: half-edges on flat `u32` arrays, link condition, edge collapse;
+//! - [`geometry`]: pure kernels (normals, shell inversion, condition (4));
+//! - [`eval`]: the [`eval::Evaluator`] trait and the CPU evaluator;
+//! - [`decimate`]: queue, association, batch scheduler, commit;
+//! - [`mapfile`]: the `BASE.map` binary format;
+//! - [`run`]: the library side of the `decimate` command (options in, files and report out);
+//! - [`sample`]: the generator of the scan-like sample meshes in `data/`;
+//! - [`validate`]: the global check of a base mesh against its scan.
+
+pub mod decimate;
+pub mod eval;
+pub mod geometry;
+pub mod mapfile;
+pub mod mesh;
+pub mod run;
+pub mod sample;
+pub mod topology;
+pub mod validate;
+
+/// Library errors. `Input` and `Usage` are the user's to fix (exit code 2).
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("{path}: {msg}")]
+    Input { path: String, msg: String },
+    #[error("{0}")]
+    Usage(String),
+    #[error("cannot write {path}: {msg}")]
+    Output { path: String, msg: String },
+}
+
+impl Error {
+    /// The process exit code for this error (SPEC §6).
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            Error::Input { .. } | Error::Usage(_) => 2,
+            Error::Output { .. } => 2,
+        }
+    }
+}

@@ -1,0 +1,179 @@
+//! The `dispdec` command line: clap parses into the library's option structs; the library
+//! does the work.
+
+use anyhow::Result;
+use clap::{Parser, Subcommand, ValueEnum};
+use dispdec::decimate::{Options, DEFAULT_MAX_VALENCE};
+use dispdec::eval::NormalMode;
+use dispdec::run::{decimate, DecimateJob};
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(name = "dispdec", version, about = "Decimate dense scans into base meshes that carry them as displacement maps")]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Normals {
+    Interpolated,
+    Constant,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Backend {
+    Cpu,
+    Gpu,
+    Auto,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Decimate INPUT (OBJ or PLY, optionally .gz) into a base mesh.
+    Decimate {
+        input: PathBuf,
+        /// The base mesh (OBJ with one vn per v and f v//vn).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Per dense vertex: base face, barycentrics and d (binary, see README).
+        #[arg(long)]
+        map: Option<PathBuf>,
+        /// JSON report.
+        #[arg(long)]
+        report: Option<PathBuf>,
+        #[arg(long, value_enum, default_value = "interpolated")]
+        normals: Normals,
+        /// Stop at this many faces (default: as far as the guarantee allows).
+        #[arg(long)]
+        target_faces: Option<usize>,
+        /// An edge collapses only if valence(u) + valence(w) - 1 is below this.
+        #[arg(long, default_value_t = DEFAULT_MAX_VALENCE)]
+        max_valence: u32,
+        /// Largest |d| (default: 0.1 x the bounding-box diagonal of INPUT).
+        #[arg(long)]
+        dmax: Option<f64>,
+        /// The paper's uniqueness rule: exactly one solution satisfying (4) per dense vertex.
+        #[arg(long)]
+        strict: bool,
+        /// Evaluator backend (this build evaluates on the CPU).
+        #[arg(long, value_enum, default_value = "cpu")]
+        backend: Backend,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Candidates evaluated per round (1 = the paper's serial algorithm).
+        #[arg(long, default_value_t = 16)]
+        batch: usize,
+        /// No progress bar.
+        #[arg(long, short)]
+        quiet: bool,
+    },
+    /// Generate a scan-like sample mesh (bumps, a thin fin, an overhang, an open boundary).
+    Sample {
+        #[arg(short, long)]
+        output: PathBuf,
+        #[arg(long, default_value_t = 100_000)]
+        faces: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+}
+
+fn main() {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(code) => std::process::exit(code),
+        Err(e) => {
+            let code = e.downcast_ref::<dispdec::Error>().map(|e| e.exit_code()).unwrap_or(1);
+            eprintln!("dispdec: error: {e}");
+            std::process::exit(code);
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<i32> {
+    match cli.cmd {
+        Cmd::Decimate {
+            input,
+            output,
+            map,
+            report,
+            normals,
+            target_faces,
+            max_valence,
+            dmax,
+            strict,
+            backend,
+            threads,
+            batch,
+            quiet,
+        } => {
+            match backend {
+                Backend::Cpu => {}
+                Backend::Auto => eprintln!("dispdec: --backend auto: no GPU evaluator in this build; using the CPU"),
+                Backend::Gpu => {
+                    return Err(dispdec::Error::Usage("--backend gpu: no GPU evaluator in this build".into()).into())
+                }
+            }
+            let job = DecimateJob {
+                input,
+                output,
+                map,
+                report,
+                options: Options {
+                    normals: match normals {
+                        Normals::Interpolated => NormalMode::Interpolated,
+                        Normals::Constant => NormalMode::Constant,
+                    },
+                    target_faces: target_faces.unwrap_or(0),
+                    max_valence,
+                    dmax,
+                    strict,
+                    batch,
+                },
+                threads,
+                progress: !quiet && std::io::stderr().is_terminal(),
+            };
+            let r = decimate(&job)?;
+            eprintln!(
+                "{}: {} -> {} faces ({:.2} % decimated) in {:.1} s; re-check: {} (unmapped {}, flipped {}, torn {}, pinched {}); max |d| {:.4} of dmax {:.4}",
+                r.input,
+                r.faces_in,
+                r.faces_out,
+                r.percent_decimated,
+                r.time.total_s,
+                if r.recheck.valid { "carries the scan" } else { "FAILED" },
+                r.recheck.unmapped,
+                r.recheck.flipped,
+                r.recheck.torn,
+                r.recheck.pinched,
+                r.max_abs_d,
+                r.dmax
+            );
+            Ok(if r.recheck.valid { 0 } else { 1 })
+        }
+        Cmd::Sample { output, faces, seed } => {
+            if !(1_000..=4_000_000).contains(&faces) {
+                return Err(dispdec::Error::Usage(format!("--faces must be between 1000 and 4000000, got {faces}")).into());
+            }
+            let m = dispdec::sample::generate(dispdec::sample::SampleSpec { faces, seed });
+            let text = dispdec::sample::to_obj(
+                &m,
+                &format!("dispdec sample surface: {} faces, seed {seed} (dispdec sample --faces {faces} --seed {seed})", m.faces.len()),
+            );
+            let bytes = if output.to_string_lossy().ends_with(".gz") {
+                use std::io::Write;
+                let mut enc = flate2::GzBuilder::new().write(Vec::new(), flate2::Compression::best());
+                enc.write_all(text.as_bytes())?;
+                enc.finish()?
+            } else {
+                text.into_bytes()
+            };
+            dispdec::mesh::write_atomic(&output, &bytes)?;
+            eprintln!("wrote {} ({} faces)", output.display(), m.faces.len());
+            Ok(0)
+        }
+    }
+}

@@ -1,0 +1,361 @@
+//! The independent, global check of SPEC §1/§4: every dense vertex is solved against the whole
+//! base mesh (not only a neighbourhood), then every dense triangle's orientation and every dense
+//! edge's continuity are checked with those primary solutions.
+//!
+//! Triangles are visited best-first by a lower bound on |d| (the distance from the point to a
+//! BVH node's box, then to the triangle), so a vertex costs a handful of cubic solves.
+
+use crate::eval::{
+    check_faces_and_edges, find_primary, DenseAdjacency, FaceInfo, Found, Map, MapContext, NormalMode, Reject,
+    Scratch, Tris,
+};
+use crate::geometry::{face_normal, maxmin_direction, triangle_distance};
+use glam::DVec3;
+use rayon::prelude::*;
+
+/// A base mesh to judge: positions, per-vertex directions, faces.
+#[derive(Clone, Debug)]
+pub struct Base {
+    pub positions: Vec<DVec3>,
+    pub directions: Vec<DVec3>,
+    pub faces: Vec<[u32; 3]>,
+}
+
+/// Leaf size of the BVH. Why: a leaf's triangles are tested exactly; 4 keeps boxes tight.
+const BVH_LEAF: usize = 4;
+
+/// A bounding-volume hierarchy over the base triangles (not their shells: the distance to a
+/// triangle is already a lower bound on |d|).
+struct Bvh {
+    nodes: Vec<Node>,
+    order: Vec<u32>,
+}
+
+#[derive(Clone, Copy)]
+struct Node {
+    lo: DVec3,
+    hi: DVec3,
+    /// Leaf: first index into `order`, count; inner: left child, right child (count = 0).
+    a: u32,
+    b: u32,
+    count: u32,
+}
+
+impl Bvh {
+    fn build(base: &Base) -> Bvh {
+        let tri_box = |f: u32| {
+            let t = base.faces[f as usize];
+            let p = t.map(|v| base.positions[v as usize]);
+            (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]))
+        };
+        let mut order: Vec<u32> = (0..base.faces.len() as u32).collect();
+        let centers: Vec<DVec3> = order
+            .iter()
+            .map(|&f| {
+                let (lo, hi) = tri_box(f);
+                0.5 * (lo + hi)
+            })
+            .collect();
+        let mut nodes = Vec::new();
+        fn rec(
+            nodes: &mut Vec<Node>,
+            order: &mut [u32],
+            first: usize,
+            centers: &[DVec3],
+            tri_box: &dyn Fn(u32) -> (DVec3, DVec3),
+        ) -> u32 {
+            let mut lo = DVec3::splat(f64::INFINITY);
+            let mut hi = DVec3::splat(f64::NEG_INFINITY);
+            for &f in order.iter() {
+                let (a, b) = tri_box(f);
+                lo = lo.min(a);
+                hi = hi.max(b);
+            }
+            let id = nodes.len() as u32;
+            nodes.push(Node { lo, hi, a: first as u32, b: 0, count: order.len() as u32 });
+            if order.len() <= BVH_LEAF {
+                return id;
+            }
+            let ext = hi - lo;
+            let axis = if ext.x >= ext.y && ext.x >= ext.z { 0 } else if ext.y >= ext.z { 1 } else { 2 };
+            let mid = order.len() / 2;
+            order.select_nth_unstable_by(mid, |&p, &q| {
+                centers[p as usize][axis].total_cmp(&centers[q as usize][axis]).then(p.cmp(&q))
+            });
+            let (l, r) = order.split_at_mut(mid);
+            let left = rec(nodes, l, first, centers, tri_box);
+            let right = rec(nodes, r, first + mid, centers, tri_box);
+            nodes[id as usize] = Node { lo, hi, a: left, b: right, count: 0 };
+            id
+        }
+        if !order.is_empty() {
+            let n = order.len();
+            let _ = n;
+            rec(&mut nodes, &mut order, 0, &centers, &tri_box);
+        }
+        Bvh { nodes, order }
+    }
+
+    /// Triangles whose distance to `x` is at most `limit`, in ascending order of that distance.
+    fn near(&self, base: &Base, x: DVec3, limit: f64, out: &mut Vec<(f64, u32)>) {
+        out.clear();
+        if self.nodes.is_empty() {
+            return;
+        }
+        let mut stack = vec![0u32];
+        while let Some(n) = stack.pop() {
+            let node = self.nodes[n as usize];
+            let q = x.clamp(node.lo, node.hi);
+            if q.distance(x) > limit {
+                continue;
+            }
+            if node.count > 0 {
+                for &f in &self.order[node.a as usize..(node.a + node.count) as usize] {
+                    let t = base.faces[f as usize];
+                    let p = t.map(|v| base.positions[v as usize]);
+                    let d = triangle_distance(x, &p);
+                    if d <= limit {
+                        out.push((d, f));
+                    }
+                }
+            } else {
+                stack.push(node.a);
+                stack.push(node.b);
+            }
+        }
+        out.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    }
+}
+
+/// Per dense vertex category.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VertexStatus {
+    Mapped,
+    Unmapped,
+    Pinched,
+}
+
+/// The result of a global check.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Verdict {
+    pub valid: bool,
+    pub dense_vertices: usize,
+    pub mapped: usize,
+    pub unmapped: usize,
+    pub pinched: usize,
+    pub flipped: usize,
+    pub torn: usize,
+    pub max_abs_d: f64,
+    pub first_unmapped: Vec<u32>,
+}
+
+/// Candidate triangles for one point: the exact search set of a best-first query, as [`Tris`].
+fn candidate_tris(base: &Base, bvh: &Bvh, x: DVec3, limit: f64, near: &mut Vec<(f64, u32)>, tris: &mut Tris) {
+    bvh.near(base, x, limit, near);
+    tris.clear();
+    for &(_, f) in near.iter() {
+        let t = base.faces[f as usize];
+        tris.push(f, t, t.map(|v| base.positions[v as usize]), t.map(|v| base.directions[v as usize]));
+    }
+    tris.finish();
+}
+
+struct ValidateContext<'a> {
+    base: &'a Base,
+    /// Faces around each base vertex (CSR).
+    vf_start: Vec<u32>,
+    vf: Vec<u32>,
+    bvh: &'a Bvh,
+    maps: &'a [Option<Map>],
+    pinched: &'a [bool],
+    mode: NormalMode,
+    dmax: f64,
+}
+
+/// First search radius of [`primary_global`], as a fraction of dmax.
+/// Why: most points lie far closer to the base than dmax; small radii keep the set tiny.
+const FIRST_RADIUS: f64 = 1.0 / 64.0;
+
+/// The primary solution of `x` over the whole base: triangles within a growing radius L are
+/// searched; a hit with |d| ≤ L is the primary, since any solution with |d| ≤ L lies on a
+/// triangle within distance L.
+#[allow(clippy::too_many_arguments)]
+fn primary_global(
+    base: &Base,
+    bvh: &Bvh,
+    x: DVec3,
+    normals: &[DVec3],
+    mode: NormalMode,
+    dmax: f64,
+    check4: bool,
+    scratch: &mut Scratch,
+    near: &mut Vec<(f64, u32)>,
+    tris: &mut Tris,
+) -> Option<Map> {
+    let mut radius = FIRST_RADIUS * dmax;
+    loop {
+        let r = radius.min(dmax);
+        candidate_tris(base, bvh, x, r, near, tris);
+        if let Found::Hit(t, h) = find_primary(x, normals, tris, mode, dmax, check4, false, scratch) {
+            if h.d.abs() <= r || r >= dmax {
+                return Some(Map { face: tris.ids[t], bary: h.bary, d: h.d });
+            }
+        }
+        if r >= dmax {
+            return None;
+        }
+        radius *= 4.0;
+    }
+}
+
+impl ValidateContext<'_> {
+    fn solve(&self, x: DVec3, normals: &[DVec3], scratch: &mut Scratch) -> Option<Map> {
+        let mut near = Vec::new();
+        let mut tris = Tris::default();
+        primary_global(self.base, self.bvh, x, normals, self.mode, self.dmax, true, scratch, &mut near, &mut tris)
+    }
+}
+
+impl MapContext for ValidateContext<'_> {
+    fn map_of(&self, v: u32) -> Option<Map> {
+        if self.pinched[v as usize] {
+            return None;
+        }
+        self.maps[v as usize]
+    }
+    fn face_info(&self, face: u32) -> FaceInfo {
+        let verts = self.base.faces[face as usize];
+        FaceInfo {
+            verts,
+            pos: verts.map(|v| self.base.positions[v as usize]),
+            dir: verts.map(|v| self.base.directions[v as usize]),
+        }
+    }
+    fn find_face(&self, verts: [u32; 3]) -> Option<u32> {
+        let v = verts[0] as usize;
+        self.vf[self.vf_start[v] as usize..self.vf_start[v + 1] as usize]
+            .iter()
+            .copied()
+            .find(|&f| verts.iter().all(|w| self.base.faces[f as usize].contains(w)))
+    }
+    fn solve_point(&self, x: DVec3, normals: &[DVec3], _fa: u32, _fb: u32, scratch: &mut Scratch) -> Option<Map> {
+        self.solve(x, normals, scratch)
+    }
+}
+
+/// Faces around each vertex, as CSR arrays (start, faces).
+pub fn vertex_faces(nv: usize, faces: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let mut start = vec![0u32; nv + 1];
+    for f in faces {
+        for &v in f {
+            start[v as usize + 1] += 1;
+        }
+    }
+    for i in 0..nv {
+        start[i + 1] += start[i];
+    }
+    let mut fill = start.clone();
+    let mut vf = vec![0u32; start[nv] as usize];
+    for (fi, f) in faces.iter().enumerate() {
+        for &v in f {
+            vf[fill[v as usize] as usize] = fi as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    (start, vf)
+}
+
+/// Dense adjacency and pinched flags of a dense mesh.
+pub struct DenseData {
+    pub pos: Vec<DVec3>,
+    pub faces: Vec<[u32; 3]>,
+    pub normal: Vec<DVec3>,
+    pub vf_start: Vec<u32>,
+    pub vf: Vec<u32>,
+    pub pinched: Vec<bool>,
+}
+
+impl DenseData {
+    pub fn new(pos: &[DVec3], faces: &[[u32; 3]]) -> DenseData {
+        let nv = pos.len();
+        let normal: Vec<DVec3> = faces
+            .iter()
+            .map(|f| face_normal(pos[f[0] as usize], pos[f[1] as usize], pos[f[2] as usize]))
+            .collect();
+        let (vf_start, vf) = vertex_faces(nv, faces);
+        let pinched = (0..nv)
+            .into_par_iter()
+            .map(|v| {
+                let ns: Vec<DVec3> =
+                    vf[vf_start[v] as usize..vf_start[v + 1] as usize].iter().map(|&f| normal[f as usize]).collect();
+                let mean = ns.iter().copied().sum::<DVec3>().normalize_or_zero();
+                if ns.iter().all(|n| n.dot(mean) > 0.0) {
+                    return false;
+                }
+                maxmin_direction(&ns).is_none()
+            })
+            .collect();
+        DenseData { pos: pos.to_vec(), faces: faces.to_vec(), normal, vf_start, vf, pinched }
+    }
+
+    pub fn adjacency(&self) -> DenseAdjacency<'_> {
+        DenseAdjacency {
+            pos: &self.pos,
+            faces: &self.faces,
+            face_normal: &self.normal,
+            vf_start: &self.vf_start,
+            vf: &self.vf,
+        }
+    }
+}
+
+/// Judges `base` against the dense mesh over the whole base mesh.
+pub fn validate(dense: &DenseData, base: &Base, mode: NormalMode, dmax: f64) -> Verdict {
+    let bvh = Bvh::build(base);
+    let adj = dense.adjacency();
+    let maps: Vec<Option<Map>> = (0..dense.pos.len() as u32)
+        .into_par_iter()
+        .map_init(
+            || (Scratch::default(), Vec::new(), Vec::new(), Tris::default()),
+            |(scratch, normals, near, tris), v| {
+                adj.vertex_normals(v, normals);
+                let x = dense.pos[v as usize];
+                let pinched = dense.pinched[v as usize];
+                primary_global(base, &bvh, x, normals, mode, dmax, !pinched, scratch, near, tris)
+            },
+        )
+        .collect();
+    let (vf_start, vf) = vertex_faces(base.positions.len(), &base.faces);
+    let ctx = ValidateContext { base, vf_start, vf, bvh: &bvh, maps: &maps, pinched: &dense.pinched, mode, dmax };
+    let failures: Vec<Reject> = (0..dense.faces.len() as u32)
+        .into_par_iter()
+        .map_init(Scratch::default, |scratch, f| check_faces_and_edges(&ctx, &adj, &[f], |_| true, scratch).err())
+        .flatten()
+        .collect();
+    let status: Vec<VertexStatus> = (0..dense.pos.len())
+        .map(|v| {
+            if dense.pinched[v] {
+                VertexStatus::Pinched
+            } else if maps[v].is_some() {
+                VertexStatus::Mapped
+            } else {
+                VertexStatus::Unmapped
+            }
+        })
+        .collect();
+    let unmapped: Vec<u32> =
+        status.iter().enumerate().filter(|(_, s)| **s == VertexStatus::Unmapped).map(|(i, _)| i as u32).collect();
+    let flipped = failures.iter().filter(|r| **r == Reject::Flip).count();
+    let torn = failures.iter().filter(|r| **r == Reject::Tear).count();
+    Verdict {
+        valid: unmapped.is_empty() && flipped == 0 && torn == 0,
+        dense_vertices: dense.pos.len(),
+        mapped: status.iter().filter(|s| **s == VertexStatus::Mapped).count(),
+        unmapped: unmapped.len(),
+        pinched: status.iter().filter(|s| **s == VertexStatus::Pinched).count(),
+        flipped,
+        torn,
+        max_abs_d: maps.iter().flatten().map(|m| m.d.abs()).fold(0.0, f64::max),
+        first_unmapped: unmapped.into_iter().take(10).collect(),
+    }
+}

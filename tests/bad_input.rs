@@ -1,0 +1,188 @@
+//! One test per bad-input class (issue: mesh input): exit code 2, a message naming the file and
+//! the problem, and no output file.
+
+mod common;
+use common::*;
+use std::path::Path;
+
+/// Runs `decimate` on `input`, asserts exit 2, a message with the file name and `needle`, and
+/// that none of the outputs exists.
+fn expect_rejected(dir: &Path, input: &Path, needle: &str) {
+    let out = dir.join("base.obj");
+    let map = dir.join("base.map");
+    let rep = dir.join("r.json");
+    let o = run(&[
+        "decimate",
+        input.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--map",
+        map.to_str().unwrap(),
+        "--report",
+        rep.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "exit code for {}: stderr {err}", input.display());
+    let fname = input.file_name().unwrap().to_string_lossy();
+    assert!(err.contains(fname.as_ref()), "message must name the file {fname}: {err}");
+    assert!(err.to_lowercase().contains(&needle.to_lowercase()), "message must say '{needle}': {err}");
+    assert!(!err.contains("panicked"), "no panic on user input: {err}");
+    for p in [&out, &map, &rep] {
+        assert!(!p.exists(), "no output file may be left: {}", p.display());
+    }
+    let leftovers: Vec<_> = std::fs::read_dir(dir).unwrap().flatten().map(|e| e.file_name()).collect();
+    let inputs = leftovers.iter().filter(|n| n.to_string_lossy().contains(".tmp")).count();
+    assert_eq!(inputs, 0, "no temporary files left: {leftovers:?}");
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+//  A closed tetrahedron, consistently wound outward: the smallest valid closed mesh.
+const TET_V: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n";
+
+#[test]
+fn missing_file() {
+    let d = tempdir("missing");
+    expect_rejected(&d, &d.join("nope.obj"), "cannot read");
+}
+
+#[test]
+fn unreadable_file() {
+    let d = tempdir("unreadable");
+    let p = d.join("adir.obj");
+    std::fs::create_dir(&p).unwrap();
+    expect_rejected(&d, &p, "cannot read");
+}
+
+#[test]
+fn malformed_obj() {
+    let d = tempdir("malformed");
+    let p = write(&d, "bad.obj", "v 0 0 0\nv 1 zero 0\nv 0 1 0\nf 1 2 3\n");
+    expect_rejected(&d, &p, "line 2");
+}
+
+#[test]
+fn truncated_binary_ply() {
+    let d = tempdir("truncated");
+    let mut b = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n".to_vec();
+    for v in [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0] {
+        b.extend_from_slice(&v.to_le_bytes());
+    }
+    let p = d.join("cut.ply");
+    std::fs::write(&p, b).unwrap();
+    expect_rejected(&d, &p, "truncated");
+}
+
+#[test]
+fn truncated_gzip() {
+    let d = tempdir("truncgz");
+    use std::io::Write;
+    let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+    e.write_all(format!("{TET_V}f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n").as_bytes()).unwrap();
+    let full = e.finish().unwrap();
+    let p = d.join("cut.obj.gz");
+    std::fs::write(&p, &full[..full.len() / 2]).unwrap();
+    expect_rejected(&d, &p, "gzip");
+}
+
+#[test]
+fn index_out_of_range() {
+    let d = tempdir("range");
+    let p = write(&d, "range.obj", &format!("{TET_V}f 1 3 2\nf 1 2 9\n"));
+    expect_rejected(&d, &p, "vertex 9");
+    let ply = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n";
+    let p = write(&d, "range.ply", ply);
+    expect_rejected(&d, &p, "face 0");
+}
+
+#[test]
+fn nan_coordinate() {
+    let d = tempdir("nan");
+    let p = write(&d, "nan.obj", "v 0 0 0\nv 1 0 0\nv 0 NaN 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n");
+    expect_rejected(&d, &p, "non-finite");
+    let p = write(&d, "inf.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 inf\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n");
+    expect_rejected(&d, &p, "non-finite");
+}
+
+#[test]
+fn face_that_cannot_be_triangulated() {
+    let d = tempdir("twogon");
+    let p = write(&d, "twogon.obj", &format!("{TET_V}f 1 3 2\nf 1 2\n"));
+    expect_rejected(&d, &p, "cannot be triangulated");
+}
+
+#[test]
+fn degenerate_faces() {
+    let d = tempdir("degen");
+    let p = write(&d, "repeat.obj", &format!("{TET_V}f 1 3 2\nf 1 1 4\n"));
+    expect_rejected(&d, &p, "degenerate");
+    // Zero area: three collinear points.
+    let p = write(&d, "flat.obj", "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n");
+    expect_rejected(&d, &p, "zero area");
+}
+
+#[test]
+fn non_manifold_edge() {
+    let d = tempdir("nmedge");
+    //   three triangles hinged on edge 1-2 (a "book" with three pages)
+    let p = write(
+        &d,
+        "book.obj",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nf 1 2 3\nf 2 1 4\nf 1 2 5\n",
+    );
+    let o = run(&["decimate", p.to_str().unwrap(), "-o", d.join("x.obj").to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    // Three pages: either the edge is shared by three faces or two run the same way.
+    assert!(err.contains("non-manifold edge") || err.contains("inconsistent winding"), "{err}");
+    // A consistent book with three pages cannot be wound consistently; a fan of four faces
+    // around one edge, alternating, is a pure non-manifold edge.
+    let p = write(
+        &d,
+        "book4.obj",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nv 0 0 -1\nf 1 2 3\nf 2 1 4\nf 1 2 5\nf 2 1 6\n",
+    );
+    expect_rejected(&d, &p, "non-manifold edge");
+}
+
+#[test]
+fn non_manifold_vertex() {
+    let d = tempdir("nmvert");
+    // Two triangles touching at vertex 1 only (a bow tie).
+    let p = write(&d, "bowtie.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv -1 0 0\nv 0 -1 0\nf 1 2 3\nf 1 4 5\n");
+    expect_rejected(&d, &p, "non-manifold vertex");
+}
+
+#[test]
+fn inconsistent_winding() {
+    let d = tempdir("winding");
+    // Two triangles sharing edge 1-2, both running 1 -> 2.
+    let p = write(&d, "wind.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nf 1 2 3\nf 1 2 4\n");
+    expect_rejected(&d, &p, "inconsistent winding");
+}
+
+#[test]
+fn empty_mesh() {
+    let d = tempdir("empty");
+    let p = write(&d, "empty.obj", "# nothing here\nv 0 0 0\n");
+    expect_rejected(&d, &p, "no faces");
+    let p = write(&d, "zero.ply", "");
+    expect_rejected(&d, &p, "empty");
+}
+
+#[test]
+fn bad_options_are_usage_errors() {
+    let d = tempdir("usage");
+    let p = write(&d, "tet.obj", &format!("{TET_V}f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"));
+    let out = d.join("o.obj");
+    let o = run(&["decimate", p.to_str().unwrap(), "-o", out.to_str().unwrap(), "--dmax", "-1"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(!out.exists());
+    let o = run(&["decimate", p.to_str().unwrap(), "-o", out.to_str().unwrap(), "--normals", "sideways"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(!out.exists());
+}
