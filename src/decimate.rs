@@ -141,6 +141,81 @@ impl DenseGrid {
     }
 }
 
+/// A uniform grid over the base faces' bounding boxes, updated as faces change, to find the
+/// faces outside a candidate's neighbourhood that could hold a smaller solution.
+pub struct FaceGrid {
+    lo: DVec3,
+    cell: f64,
+    dims: [usize; 3],
+    cells: Vec<Vec<u32>>,
+    /// Cell range of each face as inserted ([lo; 3], [hi; 3]); empty for deleted faces.
+    range: Vec<Option<([usize; 3], [usize; 3])>>,
+}
+
+/// Cells along the longest side of the face grid.
+/// Why: late in a run a base face spans a few cells; early faces share a cell with tens of others.
+const FACE_GRID_RESOLUTION: f64 = 32.0;
+
+impl FaceGrid {
+    fn new(pos: &[DVec3], topo: &Topology) -> FaceGrid {
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        for p in pos {
+            lo = lo.min(*p);
+            hi = hi.max(*p);
+        }
+        let ext = (hi - lo).max(DVec3::splat(1e-12));
+        let cell = ext.max_element() / FACE_GRID_RESOLUTION;
+        let dims = [0, 1, 2].map(|k| ((ext[k] / cell).floor() as usize + 1).max(1));
+        let nf = topo.num_faces_total();
+        let mut g = FaceGrid { lo, cell, dims, cells: vec![Vec::new(); dims[0] * dims[1] * dims[2]], range: vec![None; nf] };
+        for f in 0..nf as u32 {
+            if topo.face_alive(f) {
+                g.insert(f, topo.face(f).map(|v| pos[v as usize]));
+            }
+        }
+        g
+    }
+    fn coords(&self, p: DVec3) -> [usize; 3] {
+        [0, 1, 2].map(|k| (((p[k] - self.lo[k]) / self.cell).floor().max(0.0) as usize).min(self.dims[k] - 1))
+    }
+    fn for_cells(&self, a: [usize; 3], b: [usize; 3], mut f: impl FnMut(usize)) {
+        for z in a[2]..=b[2] {
+            for y in a[1]..=b[1] {
+                for x in a[0]..=b[0] {
+                    f((z * self.dims[1] + y) * self.dims[0] + x);
+                }
+            }
+        }
+    }
+    fn insert(&mut self, f: u32, p: [DVec3; 3]) {
+        let a = self.coords(p[0].min(p[1]).min(p[2]));
+        let b = self.coords(p[0].max(p[1]).max(p[2]));
+        let mut ids = Vec::new();
+        self.for_cells(a, b, |c| ids.push(c));
+        for c in ids {
+            self.cells[c].push(f);
+        }
+        self.range[f as usize] = Some((a, b));
+    }
+    fn remove(&mut self, f: u32) {
+        if let Some((a, b)) = self.range[f as usize].take() {
+            let mut ids = Vec::new();
+            self.for_cells(a, b, |c| ids.push(c));
+            for c in ids {
+                self.cells[c].retain(|&g| g != f);
+            }
+        }
+    }
+    /// Faces whose cells overlap the box [lo, hi], ascending, without repeats.
+    fn query(&self, lo: DVec3, hi: DVec3, out: &mut Vec<u32>) {
+        out.clear();
+        self.for_cells(self.coords(lo), self.coords(hi), |c| out.extend_from_slice(&self.cells[c]));
+        out.sort_unstable();
+        out.dedup();
+    }
+}
+
 /// Counters for the report.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Stats {
@@ -178,6 +253,8 @@ pub struct State {
     pub face_dense: Vec<Vec<u32>>,
     /// Static grid over the dense vertices.
     pub grid: DenseGrid,
+    /// Dynamic grid over the base faces.
+    pub face_grid: FaceGrid,
     /// An upper bound on |d| over all associations (grows as the base coarsens).
     pub max_abs_d: f64,
     // Queue.
@@ -276,6 +353,7 @@ impl State {
             assoc: Vec::with_capacity(nv),
             face_dense: vec![Vec::new(); nf],
             grid: DenseGrid::new(&dense.positions),
+            face_grid: FaceGrid::new(&dense.positions, &dense.topology),
             max_abs_d: 0.0,
             heap: BinaryHeap::new(),
             queued: HashSet::new(),
@@ -603,6 +681,7 @@ impl State {
                 Found::None => return Err(Reject::Unmapped),
             }
         }
+        self.far_primaries(c, tris, &mut maps, scratch);
         let extras = self.moved_primaries(c, tris, n_region, scratch);
         let faces_owned;
         let faces: &[u32] = if extras.is_empty() {
@@ -621,6 +700,64 @@ impl State {
         let tested = |v: u32| c.dense.binary_search(&v).is_ok() || extras.binary_search_by_key(&v, |e| e.0).is_ok();
         check_faces_and_edges(&ctx, &dense, faces, tested, scratch)?;
         Ok(Accepted { placement: 0, position: p, new_dirs, maps, extras })
+    }
+
+    /// The region's vertices were solved over region ∪ border; a face outside (the far side of
+    /// a thin part) may hold a solution with a smaller |d|. Any such face lies within |d| of the
+    /// vertex, so one grid query with the largest |d| finds every candidate face.
+    fn far_primaries(&self, c: &Candidate, tris: &Tris, maps: &mut [Map], scratch: &mut Scratch) {
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        let mut reach: f64 = 0.0;
+        for (i, &v) in c.dense.iter().enumerate() {
+            if self.pinched[v as usize] || maps[i].d == 0.0 {
+                continue;
+            }
+            let x = self.dpos[v as usize];
+            lo = lo.min(x);
+            hi = hi.max(x);
+            reach = reach.max(maps[i].d.abs());
+        }
+        if reach == 0.0 {
+            return;
+        }
+        let mut faces = Vec::new();
+        self.face_grid.query(lo - DVec3::splat(reach), hi + DVec3::splat(reach), &mut faces);
+        let mut far = Tris::default();
+        for f in faces {
+            if tris.index_of(f).is_some() || c.region.binary_search(&f).is_ok() || !self.topo.face_alive(f) {
+                continue;
+            }
+            let info = self.face_info_current(f);
+            let (ctr, r) = crate::geometry::triangle_sphere(&info.pos);
+            // Skip faces beyond every vertex's reach.
+            let q = ctr.clamp(lo, hi);
+            if q.distance(ctr) - r > reach {
+                continue;
+            }
+            far.push(f, info.verts, info.pos, info.dir);
+        }
+        if far.is_empty() {
+            return;
+        }
+        far.finish();
+        let dense = self.dense();
+        let mut normals = Vec::new();
+        let tie = crate::eval::SAME_SOLUTION_REL * self.dmax;
+        for (i, &v) in c.dense.iter().enumerate() {
+            let cur = maps[i];
+            if self.pinched[v as usize] || cur.d == 0.0 {
+                continue;
+            }
+            let x = self.dpos[v as usize];
+            dense.vertex_normals(v, &mut normals);
+            if let Found::Hit(t, h) = find_primary(x, &normals, &far, self.mode, cur.d.abs() + tie, true, false, scratch) {
+                let (da, db) = (h.d.abs(), cur.d.abs());
+                if da < db - tie || (da <= db + tie && far.ids[t] < cur.face) {
+                    maps[i] = Map { face: far.ids[t], bary: h.bary, d: h.d };
+                }
+            }
+        }
     }
 
     /// Dense vertices associated outside the region whose primary solution moves onto it: a
@@ -719,6 +856,13 @@ impl State {
             let removed = self.topo.collapse(c.he);
             self.face_count -= removed.iter().filter(|&&f| f != INVALID).count();
             self.pos[c.u as usize] = acc.position;
+            for &f in &c.region {
+                self.face_grid.remove(f);
+                if self.topo.face_alive(f) {
+                    let p = self.topo.face(f).map(|v| self.pos[v as usize]);
+                    self.face_grid.insert(f, p);
+                }
+            }
             for (v, d) in acc.new_dirs {
                 self.dir[v as usize] = d;
             }
@@ -885,18 +1029,6 @@ impl State {
                 check_faces_and_edges(&ctx, &dense, &[f], |_| true, &mut scratch).err().map(|r| (f, r))
             })
             .collect();
-        if std::env::var_os("DISPDEC_DEBUG").is_some() {
-            for (f, r) in &failures {
-                let fv = self.dfaces[*f as usize];
-                eprintln!("dense face {f} {r:?} verts {fv:?}");
-                for v in fv {
-                    eprintln!("  v{v} pinched={} recheck={:?} assoc={:?}", self.pinched[v as usize], maps[v as usize], self.assoc[v as usize]);
-                    for &g in self.dense().faces_of(v) {
-                        eprintln!("     face {g} normal {:?}", self.dnormal[g as usize]);
-                    }
-                }
-            }
-        }
         let flipped = failures.iter().filter(|(_, r)| *r == Reject::Flip).map(|(f, _)| *f).collect();
         let torn = failures.iter().filter(|(_, r)| *r == Reject::Tear).map(|(f, _)| *f).collect();
         let max_abs_d = maps.iter().flatten().map(|m| m.d.abs()).fold(0.0, f64::max);
@@ -937,8 +1069,8 @@ impl State {
         tris.finish();
     }
 
-    /// The live face with exactly these vertices.
-    pub fn find_face(&self, verts: [u32; 3]) -> Option<u32> {
+    /// A live face containing all of `verts`.
+    pub fn face_containing(&self, verts: &[u32]) -> Option<u32> {
         let (mut s, mut fs) = (Vec::new(), Vec::new());
         self.topo.faces_around(verts[0], &mut s, &mut fs);
         fs.into_iter().find(|&f| verts.iter().all(|v| self.topo.face(f).contains(v)))
@@ -949,11 +1081,6 @@ impl State {
         FaceInfo { verts, pos: verts.map(|v| self.pos[v as usize]), dir: verts.map(|v| self.dir[v as usize]) }
     }
 
-    /// Genus and boundary-loop count of the live base mesh (Euler characteristic).
-    pub fn base_topology_summary(&self) -> (i64, usize) {
-        let b = self.compact();
-        topology_summary(b.positions.len(), &b.faces)
-    }
 }
 
 /// (genus, boundary loops) of a single-component mesh from its Euler characteristic.
@@ -1045,18 +1172,20 @@ impl MapContext for CandidateContext<'_> {
             None => self.st.face_info_current(face),
         }
     }
-    fn find_face(&self, verts: [u32; 3]) -> Option<u32> {
-        let same = |t: &[u32; 3]| verts.iter().all(|v| t.contains(v));
-        if let Some(t) = self.tris.verts.iter().position(same) {
+    fn face_containing(&self, verts: &[u32]) -> Option<u32> {
+        let holds = |t: &[u32; 3]| verts.iter().all(|v| t.contains(v));
+        if let Some(t) = self.tris.verts.iter().position(holds) {
             return Some(self.tris.ids[t]);
         }
-        // Unchanged faces: around an endpoint in the committed mesh, outside the region.
-        if verts.contains(&self.c.w) || verts.iter().any(|v| self.c.changed.contains(v)) {
+        // Unchanged faces: around a vertex whose fan did not change, outside the region (a
+        // changed vertex's faces are all in the neighbourhood).
+        let v0 = verts[0];
+        if v0 == self.c.w || self.c.changed.contains(&v0) || verts.contains(&self.c.w) {
             return None;
         }
         let (mut s, mut fs) = (Vec::new(), Vec::new());
-        self.st.topo.faces_around(verts[0], &mut s, &mut fs);
-        fs.into_iter().find(|&f| same(&self.st.topo.face(f)) && self.c.region.binary_search(&f).is_err())
+        self.st.topo.faces_around(v0, &mut s, &mut fs);
+        fs.into_iter().find(|&f| holds(&self.st.topo.face(f)) && self.c.region.binary_search(&f).is_err())
     }
     fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map> {
         // The neighbourhood, plus the (unchanged) faces around an end that maps outside it.
@@ -1107,8 +1236,8 @@ impl MapContext for GlobalContext<'_> {
     fn face_info(&self, face: u32) -> FaceInfo {
         self.st.face_info_current(face)
     }
-    fn find_face(&self, verts: [u32; 3]) -> Option<u32> {
-        self.st.find_face(verts)
+    fn face_containing(&self, verts: &[u32]) -> Option<u32> {
+        self.st.face_containing(verts)
     }
     fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map> {
         let mut tris = Tris::default();

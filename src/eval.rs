@@ -276,8 +276,8 @@ pub trait MapContext {
     /// The map of a dense vertex, `None` for a pinched vertex (exempt).
     fn map_of(&self, v: u32) -> Option<Map>;
     fn face_info(&self, face: u32) -> FaceInfo;
-    /// The base face with exactly these three vertices, if there is one.
-    fn find_face(&self, verts: [u32; 3]) -> Option<u32>;
+    /// A live base face containing all of `verts` (one to three vertices), if there is one.
+    fn face_containing(&self, verts: &[u32]) -> Option<u32>;
     /// The primary solution of a point on a dense edge (condition (4) against `normals`),
     /// searched over the neighbourhood and around the base faces `fa` and `fb` of its ends.
     fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map>;
@@ -287,7 +287,6 @@ fn image_point(info: &FaceInfo, bary: &[f64; 3]) -> DVec3 {
     interpolate_direction(&info.pos, bary)
 }
 
-const INVALID_VERTEX: u32 = u32::MAX;
 
 /// Barycentric coordinates on face `target` of the point with `bary` on face `verts`, when the
 /// point lies on `target` (its non-zero weights sit on vertices `target` shares).
@@ -300,10 +299,6 @@ fn on_face(verts: &[u32; 3], bary: &[f64; 3], target: &[u32; 3]) -> Option<[f64;
         }
     }
     Some(out)
-}
-
-fn common_vertex(a: &[u32; 3], b: &[u32; 3], c: &[u32; 3]) -> Option<u32> {
-    a.iter().copied().find(|v| b.contains(v) && c.contains(v))
 }
 
 fn touch(a: &[u32; 3], b: &[u32; 3]) -> bool {
@@ -329,20 +324,13 @@ pub fn image_positive<C: MapContext>(ctx: &C, m: [Map; 3]) -> bool {
             return orient2(a, b, c) > 0.0;
         }
     }
-    // The base vertices carrying the three points: when they are exactly three and span a base
-    // face, that face holds all three images.
-    let mut support = [INVALID_VERTEX; 9];
-    let mut ns = 0;
-    for i in 0..3 {
-        for k in 0..3 {
-            if m[i].bary[k] > geometry::BARY_EPS && !support[..ns].contains(&fi[i].verts[k]) {
-                support[ns] = fi[i].verts[k];
-                ns += 1;
-            }
-        }
-    }
-    if ns == 3 {
-        if let Some(f) = ctx.find_face([support[0], support[1], support[2]]) {
+    // The base vertices carrying each point (one for a point on a vertex, two on an edge).
+    let sup = [support(&fi[0], &m[0]), support(&fi[1], &m[1]), support(&fi[2], &m[2])];
+    let mut all: Vec<u32> = sup.iter().flatten().copied().collect();
+    all.sort_unstable();
+    all.dedup();
+    if all.len() <= 3 {
+        if let Some(f) = ctx.face_containing(&all) {
             let target = ctx.face_info(f).verts;
             let on = |i: usize| on_face(&fi[i].verts, &m[i].bary, &target);
             if let (Some(a), Some(b), Some(c)) = (on(0), on(1), on(2)) {
@@ -350,18 +338,55 @@ pub fn image_positive<C: MapContext>(ctx: &C, m: [Map; 3]) -> bool {
             }
         }
     }
+    // A base vertex whose closed star holds all three points; of several, the one nearest the
+    // image's centroid (a geometric choice: the verdict depends neither on which equivalent face
+    // represents a point nor on the numbering of the base mesh).
+    let mut cands: Vec<u32> = all.clone();
+    cands.extend(fi.iter().flat_map(|f| f.verts));
+    cands.sort_unstable();
+    cands.dedup();
     let x = [image_point(&fi[0], &m[0].bary), image_point(&fi[1], &m[1].bary), image_point(&fi[2], &m[2].bary)];
-    let n_ref = match common_vertex(&fi[0].verts, &fi[1].verts, &fi[2].verts) {
-        Some(v) => {
-            let k = fi[0].verts.iter().position(|&w| w == v).unwrap();
-            fi[0].dir[k]
+    let centroid = (x[0] + x[1] + x[2]) / 3.0;
+    let mut best: Option<(f64, DVec3)> = None;
+    for v in cands {
+        if let Some((dir, pos)) = star_direction(ctx, v, &sup) {
+            let dist = pos.distance(centroid);
+            if best.is_none_or(|b| dist < b.0) {
+                best = Some((dist, dir));
+            }
         }
-        None => fi
-            .iter()
-            .map(|f| geometry::face_normal(f.pos[0], f.pos[1], f.pos[2]))
-            .sum::<DVec3>(),
-    };
+    }
+    if let Some((_, dir)) = best {
+        return (x[1] - x[0]).cross(x[2] - x[0]).dot(dir) > 0.0;
+    }
+    let n_ref: DVec3 = fi.iter().map(|f| geometry::face_normal(f.pos[0], f.pos[1], f.pos[2])).sum();
     (x[1] - x[0]).cross(x[2] - x[0]).dot(n_ref) > 0.0
+}
+
+/// The base vertices carrying a point: those with a non-zero barycentric weight.
+fn support(face: &FaceInfo, m: &Map) -> Vec<u32> {
+    (0..3).filter(|&k| m.bary[k] > geometry::BARY_EPS).map(|k| face.verts[k]).collect()
+}
+
+/// The direction and position of vertex `v` when every support set lies in a face with `v` (the
+/// points are in `v`'s closed star), else `None`.
+fn star_direction<C: MapContext>(ctx: &C, v: u32, sup: &[Vec<u32>]) -> Option<(DVec3, DVec3)> {
+    let mut dir = None;
+    for s in sup {
+        let mut q = s.clone();
+        if !q.contains(&v) {
+            q.push(v);
+        }
+        if q.len() > 3 {
+            return None;
+        }
+        let f = ctx.face_containing(&q)?;
+        if dir.is_none() {
+            let info = ctx.face_info(f);
+            dir = info.verts.iter().position(|&w| w == v).map(|k| (info.dir[k], info.pos[k]));
+        }
+    }
+    dir
 }
 
 /// Whether the image of the dense edge from `pa` (map `ma`) to `pb` (map `mb`) is continuous:
@@ -382,6 +407,14 @@ pub fn edge_continuous<C: MapContext>(
     }
     let (fa, fb) = (ctx.face_info(ma.face), ctx.face_info(mb.face));
     if touch(&fa.verts, &fb.verts) {
+        return true;
+    }
+    // Points on vertices or edges: their stars may touch through another representation.
+    let sup = [support(&fa, &ma), support(&fb, &mb)];
+    let mut cands: Vec<u32> = fa.verts.iter().chain(fb.verts.iter()).copied().collect();
+    cands.sort_unstable();
+    cands.dedup();
+    if (sup[0].len() < 3 || sup[1].len() < 3) && cands.into_iter().any(|v| star_direction(ctx, v, &sup).is_some()) {
         return true;
     }
     if depth == 0 {

@@ -138,7 +138,7 @@ fn run(cli: Cli) -> Result<i32> {
             };
             let r = decimate(&job)?;
             eprintln!(
-                "{}: {} -> {} faces ({:.2} % decimated) in {:.1} s; re-check: {} (unmapped {}, flipped {}, torn {}, pinched {}); max |d| {:.4} of dmax {:.4}",
+                "{}: {} -> {} faces ({:.2} % decimated) in {:.1} s; local re-check: {} (unmapped {}, flipped {}, torn {}, pinched {}); global check: {}; max |d| {:.4} of dmax {:.4}",
                 r.input,
                 r.faces_in,
                 r.faces_out,
@@ -149,10 +149,19 @@ fn run(cli: Cli) -> Result<i32> {
                 r.recheck.flipped,
                 r.recheck.torn,
                 r.recheck.pinched,
+                if r.global.valid {
+                    "valid".to_string()
+                } else {
+                    format!("INVALID (unmapped {}, flipped {}, torn {})", r.global.unmapped, r.global.flipped, r.global.torn)
+                },
                 r.max_abs_d,
                 r.dmax
             );
-            Ok(if r.recheck.valid { 0 } else { 1 })
+            if !(r.recheck.valid && r.global.valid) {
+                eprintln!("dispdec: the final check of the guarantee failed; outputs are written, see the report");
+                return Ok(1);
+            }
+            Ok(0)
         }
         Cmd::Sample { output, faces, seed } => {
             if !(1_000..=4_000_000).contains(&faces) {

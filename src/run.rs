@@ -166,7 +166,6 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         .to_bytes()
     });
     let faces_out = base.faces.len();
-    let t_total_before_write = t_check;
     let mut report = Report {
         input: job.input.display().to_string(),
         output: job.output.display().to_string(),
@@ -233,6 +232,5 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         }
         return Err(e);
     }
-    let _ = t_total_before_write;
     Ok(report)
 }

@@ -231,7 +231,7 @@ impl MapContext for ValidateContext<'_> {
             dir: verts.map(|v| self.base.directions[v as usize]),
         }
     }
-    fn find_face(&self, verts: [u32; 3]) -> Option<u32> {
+    fn face_containing(&self, verts: &[u32]) -> Option<u32> {
         let v = verts[0] as usize;
         self.vf[self.vf_start[v] as usize..self.vf_start[v + 1] as usize]
             .iter()

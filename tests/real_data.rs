@@ -1,0 +1,134 @@
+//! The decimator on the real scans of `../shared/data` (or $DISPDEC_DATA), through the real
+//! binary: the paper's face counts, the guarantee re-checked locally and globally, topology
+//! preserved, deterministic bytes whatever the thread count.
+
+mod common;
+use common::*;
+use serde_json::Value;
+use std::path::Path;
+
+fn decimate(input: &Path, dir: &Path, name: &str, extra: &[&str]) -> (Value, Vec<u8>, Vec<u8>) {
+    let obj = dir.join(format!("{name}.obj"));
+    let map = dir.join(format!("{name}.map"));
+    let rep = dir.join(format!("{name}.json"));
+    let mut args = vec![
+        "decimate",
+        input.to_str().unwrap(),
+        "-o",
+        obj.to_str().unwrap(),
+        "--map",
+        map.to_str().unwrap(),
+        "--report",
+        rep.to_str().unwrap(),
+        "--quiet",
+    ];
+    args.extend_from_slice(extra);
+    let o = run(&args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    eprintln!("{err}");
+    assert_eq!(o.status.code(), Some(0), "decimate {} {extra:?}: {err}", input.display());
+    let report: Value = serde_json::from_slice(&std::fs::read(&rep).unwrap()).unwrap();
+    (report, std::fs::read(&obj).unwrap(), std::fs::read(&map).unwrap())
+}
+
+fn assert_carries(r: &Value) {
+    for part in ["recheck", "global"] {
+        let p = &r[part];
+        assert_eq!(p["valid"], Value::Bool(true), "{part} must pass: {p}");
+        assert_eq!(p["unmapped"], 0, "{part}: {p}");
+        assert_eq!(p["flipped"], 0, "{part}: {p}");
+        assert_eq!(p["torn"], 0, "{part}: {p}");
+    }
+}
+
+/// The base OBJ: `v`, one `vn` per `v`, `f v//vn`; a manifold with the given genus and loops.
+fn assert_base_obj(bytes: &[u8], faces: u64, genus: i64, loops: u64) {
+    let text = String::from_utf8_lossy(bytes);
+    let nv = text.lines().filter(|l| l.starts_with("v ")).count();
+    let nvn = text.lines().filter(|l| l.starts_with("vn ")).count();
+    let nf = text.lines().filter(|l| l.starts_with("f ")).count();
+    assert_eq!(nv, nvn, "one vn per v");
+    assert_eq!(nf as u64, faces);
+    assert!(text.lines().filter(|l| l.starts_with("f ")).all(|l| l.split_whitespace().skip(1).all(|c| {
+        let (a, b) = c.split_once("//").unwrap();
+        a == b
+    })));
+    let dir = tempdir("base-obj");
+    let p = dir.join("b.obj");
+    std::fs::write(&p, bytes).unwrap();
+    let m = dispdec::mesh::load_dense(&p).expect("base mesh is a valid manifold mesh");
+    assert_eq!(m.positions.len(), nv, "no unreferenced vertices in the base");
+    let (g, l) = dispdec::decimate::topology_summary(m.positions.len(), &m.faces);
+    assert_eq!((g, l as u64), (genus, loops), "genus and boundary loops preserved");
+}
+
+#[test]
+fn bunny_reaches_the_paper_and_carries_the_scan() {
+    let Some(bunny) = real_scan("bunny.ply.gz") else { return };
+    let dir = tempdir("bunny");
+    let (r, obj, map) = decimate(&bunny, &dir, "b", &[]);
+    let faces = r["faces_out"].as_u64().unwrap();
+    assert_eq!(r["faces_in"], 69451);
+    assert!(faces <= 388, "bunny: {faces} faces, the paper reached 388");
+    assert_carries(&r);
+    assert_eq!(r["genus"], 0);
+    assert_eq!(r["boundary_loops_in"], 5);
+    assert_eq!(r["boundary_loops_out"], 5);
+    assert_base_obj(&obj, faces, 0, 5);
+    // The map covers every input vertex, referenced or not.
+    let mf = dispdec::mapfile::MapFile::read(&dir.join("b.map")).unwrap();
+    assert_eq!(mf.records.len(), 35947);
+    assert_eq!(mf.base_faces as u64, faces);
+    let unref = mf.records.iter().filter(|x| x.status == dispdec::mapfile::STATUS_UNREFERENCED).count();
+    assert_eq!(unref, 1113);
+    assert!(mf.records.iter().filter(|x| x.status == 0).all(|x| (x.face as u64) < faces && x.d.abs() <= mf.dmax));
+
+    // Determinism: the same bytes again, and with one thread.
+    let (_, obj2, map2) = decimate(&bunny, &dir, "b2", &[]);
+    assert!(obj == obj2 && map == map2, "two runs must give identical bytes");
+    let (_, obj1, map1) = decimate(&bunny, &dir, "b1", &["--threads", "1"]);
+    assert!(obj == obj1 && map == map1, "--threads 1 must give the same bytes");
+    let (_, obj3, _) = decimate(&bunny, &dir, "b3", &["--threads", "2"]);
+    assert_eq!(obj, obj3, "--threads 2 must give the same bytes");
+}
+
+#[test]
+fn bunny_strict_and_constant_modes() {
+    let Some(bunny) = real_scan("bunny.ply.gz") else { return };
+    let dir = tempdir("bunny-modes");
+    let (r, obj, _) = decimate(&bunny, &dir, "s", &["--strict"]);
+    assert_eq!(r["strict"], true);
+    assert_carries(&r);
+    let fs = r["faces_out"].as_u64().unwrap();
+    assert!(fs < 69451 / 10, "strict still decimates: {fs}");
+    assert_base_obj(&obj, fs, 0, 5);
+    let (r, obj, _) = decimate(&bunny, &dir, "c", &["--normals", "constant"]);
+    assert_eq!(r["normals"], "constant");
+    assert_carries(&r);
+    let fc = r["faces_out"].as_u64().unwrap();
+    assert!(fc < 69451, "constant mode decimates a little: {fc}");
+    assert_base_obj(&obj, fc, 0, 5);
+}
+
+#[test]
+fn horse_reaches_the_paper_and_carries_the_scan() {
+    let Some(horse) = real_scan("horse.ply.gz") else { return };
+    let dir = tempdir("horse");
+    let (r, obj, _) = decimate(&horse, &dir, "h", &[]);
+    let faces = r["faces_out"].as_u64().unwrap();
+    assert_eq!(r["faces_in"], 96966);
+    assert!(faces <= 502, "horse: {faces} faces, the paper reached 502");
+    assert_carries(&r);
+    assert_base_obj(&obj, faces, 0, 0);
+}
+
+#[test]
+fn target_faces_stops_there() {
+    let Some(bunny) = real_scan("bunny.ply.gz") else { return };
+    let dir = tempdir("bunny-target");
+    let (r, obj, _) = decimate(&bunny, &dir, "t", &["--target-faces", "5000"]);
+    let faces = r["faces_out"].as_u64().unwrap();
+    assert!((4998..=5000).contains(&faces), "{faces}");
+    assert_carries(&r);
+    assert_base_obj(&obj, faces, 0, 5);
+}
