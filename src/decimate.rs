@@ -4,12 +4,10 @@
 //! edge queue; an [`Evaluator`] tests a batch of independent candidates; passing candidates are
 //! committed in queue order. A batch of one is exactly the paper's serial algorithm.
 
-use crate::eval::{
-    check_faces_and_edges, find_primary, Accepted, DenseAdjacency, Evaluator, FaceInfo, Found, Map, MapContext,
-    NormalMode, Outcome, Reject, Scratch, Tris,
-};
-use crate::geometry::{face_cross, face_normal, maxmin_direction, vertex_direction};
-use crate::mesh::DenseMesh;
+use crate::eval::{Evaluator, FaceInfo, Map, NormalMode, Outcome, Reject, Tris};
+use crate::geometry::{face_cross, vertex_direction};
+use crate::grid::{DenseGrid, FaceGrid};
+use crate::mesh::{DenseData, DenseMesh};
 use crate::topology::{face_of, Topology, INVALID};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -78,144 +76,6 @@ pub struct Candidate {
     pub dense_faces: Vec<u32>,
 }
 
-/// A uniform grid over the (static) dense vertex positions, to find the vertices near a
-/// changed region whatever face they are associated with.
-pub struct DenseGrid {
-    lo: DVec3,
-    cell: f64,
-    dims: [usize; 3],
-    start: Vec<u32>,
-    items: Vec<u32>,
-}
-
-/// Cells along the bounding box's longest side of the dense grid.
-/// Why: late in a run a region spans a tenth of the model; 64 keeps its query to a few hundred cells.
-const GRID_RESOLUTION: f64 = 64.0;
-
-impl DenseGrid {
-    pub fn new(pos: &[DVec3]) -> DenseGrid {
-        let mut lo = DVec3::splat(f64::INFINITY);
-        let mut hi = DVec3::splat(f64::NEG_INFINITY);
-        for p in pos {
-            lo = lo.min(*p);
-            hi = hi.max(*p);
-        }
-        let ext = (hi - lo).max(DVec3::splat(1e-12));
-        let cell = ext.max_element() / GRID_RESOLUTION;
-        let dims = [0, 1, 2].map(|k| ((ext[k] / cell).floor() as usize + 1).max(1));
-        let mut g = DenseGrid { lo, cell, dims, start: vec![0; dims[0] * dims[1] * dims[2] + 1], items: vec![0; pos.len()] };
-        let ids: Vec<usize> = pos.iter().map(|p| g.cell_index(g.coords(*p))).collect();
-        for &c in &ids {
-            g.start[c + 1] += 1;
-        }
-        for i in 0..g.start.len() - 1 {
-            g.start[i + 1] += g.start[i];
-        }
-        let mut fill = g.start.clone();
-        for (v, &c) in ids.iter().enumerate() {
-            g.items[fill[c] as usize] = v as u32;
-            fill[c] += 1;
-        }
-        g
-    }
-    fn coords(&self, p: DVec3) -> [usize; 3] {
-        [0, 1, 2].map(|k| (((p[k] - self.lo[k]) / self.cell).floor().max(0.0) as usize).min(self.dims[k] - 1))
-    }
-    fn cell_index(&self, c: [usize; 3]) -> usize {
-        (c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0]
-    }
-    /// Calls `f` for every vertex in the cells overlapping the box [lo, hi].
-    pub fn query(&self, lo: DVec3, hi: DVec3, mut f: impl FnMut(u32)) {
-        let a = self.coords(lo);
-        let b = self.coords(hi);
-        for z in a[2]..=b[2] {
-            for y in a[1]..=b[1] {
-                for x in a[0]..=b[0] {
-                    let c = self.cell_index([x, y, z]);
-                    for &v in &self.items[self.start[c] as usize..self.start[c + 1] as usize] {
-                        f(v);
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// A uniform grid over the base faces' bounding boxes, updated as faces change, to find the
-/// faces outside a candidate's neighbourhood that could hold a smaller solution.
-pub struct FaceGrid {
-    lo: DVec3,
-    cell: f64,
-    dims: [usize; 3],
-    cells: Vec<Vec<u32>>,
-    /// Cell range of each face as inserted ([lo; 3], [hi; 3]); empty for deleted faces.
-    range: Vec<Option<([usize; 3], [usize; 3])>>,
-}
-
-/// Cells along the longest side of the face grid.
-/// Why: late in a run a base face spans a few cells; early faces share a cell with tens of others.
-const FACE_GRID_RESOLUTION: f64 = 32.0;
-
-impl FaceGrid {
-    fn new(pos: &[DVec3], topo: &Topology) -> FaceGrid {
-        let mut lo = DVec3::splat(f64::INFINITY);
-        let mut hi = DVec3::splat(f64::NEG_INFINITY);
-        for p in pos {
-            lo = lo.min(*p);
-            hi = hi.max(*p);
-        }
-        let ext = (hi - lo).max(DVec3::splat(1e-12));
-        let cell = ext.max_element() / FACE_GRID_RESOLUTION;
-        let dims = [0, 1, 2].map(|k| ((ext[k] / cell).floor() as usize + 1).max(1));
-        let nf = topo.num_faces_total();
-        let mut g = FaceGrid { lo, cell, dims, cells: vec![Vec::new(); dims[0] * dims[1] * dims[2]], range: vec![None; nf] };
-        for f in 0..nf as u32 {
-            if topo.face_alive(f) {
-                g.insert(f, topo.face(f).map(|v| pos[v as usize]));
-            }
-        }
-        g
-    }
-    fn coords(&self, p: DVec3) -> [usize; 3] {
-        [0, 1, 2].map(|k| (((p[k] - self.lo[k]) / self.cell).floor().max(0.0) as usize).min(self.dims[k] - 1))
-    }
-    fn for_cells(&self, a: [usize; 3], b: [usize; 3], mut f: impl FnMut(usize)) {
-        for z in a[2]..=b[2] {
-            for y in a[1]..=b[1] {
-                for x in a[0]..=b[0] {
-                    f((z * self.dims[1] + y) * self.dims[0] + x);
-                }
-            }
-        }
-    }
-    fn insert(&mut self, f: u32, p: [DVec3; 3]) {
-        let a = self.coords(p[0].min(p[1]).min(p[2]));
-        let b = self.coords(p[0].max(p[1]).max(p[2]));
-        let mut ids = Vec::new();
-        self.for_cells(a, b, |c| ids.push(c));
-        for c in ids {
-            self.cells[c].push(f);
-        }
-        self.range[f as usize] = Some((a, b));
-    }
-    fn remove(&mut self, f: u32) {
-        if let Some((a, b)) = self.range[f as usize].take() {
-            let mut ids = Vec::new();
-            self.for_cells(a, b, |c| ids.push(c));
-            for c in ids {
-                self.cells[c].retain(|&g| g != f);
-            }
-        }
-    }
-    /// Faces whose cells overlap the box [lo, hi], ascending, without repeats.
-    fn query(&self, lo: DVec3, hi: DVec3, out: &mut Vec<u32>) {
-        out.clear();
-        self.for_cells(self.coords(lo), self.coords(hi), |c| out.extend_from_slice(&self.cells[c]));
-        out.sort_unstable();
-        out.dedup();
-    }
-}
-
 /// Counters for the report.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Stats {
@@ -236,13 +96,8 @@ pub struct State {
     pub dmax: f64,
     pub strict: bool,
     pub max_valence: u32,
-    // Dense mesh.
-    pub dpos: Vec<DVec3>,
-    pub dfaces: Vec<[u32; 3]>,
-    pub dnormal: Vec<DVec3>,
-    pub vf_start: Vec<u32>,
-    pub vf: Vec<u32>,
-    pub pinched: Vec<bool>,
+    /// The dense mesh (immutable).
+    pub dense: DenseData,
     // Base mesh.
     pub pos: Vec<DVec3>,
     pub dir: Vec<DVec3>,
@@ -257,6 +112,10 @@ pub struct State {
     pub face_grid: FaceGrid,
     /// An upper bound on |d| over all associations (grows as the base coarsens).
     pub max_abs_d: f64,
+    /// Dense vertices (not pinched) that fail condition (4) on the initial base (the scan
+    /// itself): none with interpolated normals (the direction rule), some in constant mode,
+    /// where a vertex sees only its faces' own normals.
+    pub unmapped_at_start: usize,
     // Queue.
     heap: BinaryHeap<QueueEntry>,
     queued: HashSet<u64>,
@@ -296,40 +155,7 @@ impl State {
     /// associated with one of its own faces at d = 0; all edges are queued by length.
     pub fn new(dense: &DenseMesh, opts: &Options) -> State {
         let nv = dense.positions.len();
-        let dnormal: Vec<DVec3> = dense
-            .faces
-            .iter()
-            .map(|f| face_normal(dense.positions[f[0] as usize], dense.positions[f[1] as usize], dense.positions[f[2] as usize]))
-            .collect();
-        let mut vf_start = vec![0u32; nv + 1];
-        for f in &dense.faces {
-            for &v in f {
-                vf_start[v as usize + 1] += 1;
-            }
-        }
-        for i in 0..nv {
-            vf_start[i + 1] += vf_start[i];
-        }
-        let mut fill = vf_start.clone();
-        let mut vf = vec![0u32; vf_start[nv] as usize];
-        for (fi, f) in dense.faces.iter().enumerate() {
-            for &v in f {
-                vf[fill[v as usize] as usize] = fi as u32;
-                fill[v as usize] += 1;
-            }
-        }
-        let pinched: Vec<bool> = (0..nv)
-            .into_par_iter()
-            .map(|v| {
-                let ns: Vec<DVec3> =
-                    vf[vf_start[v] as usize..vf_start[v + 1] as usize].iter().map(|&f| dnormal[f as usize]).collect();
-                let mean = ns.iter().copied().sum::<DVec3>().normalize_or_zero();
-                if ns.iter().all(|n| n.dot(mean) > 0.0) {
-                    return false;
-                }
-                maxmin_direction(&ns).is_none()
-            })
-            .collect();
+        let dd = DenseData::new(&dense.positions, &dense.faces);
         let dmax = opts.dmax.unwrap_or_else(|| {
             DEFAULT_DMAX_FRACTION * crate::mesh::bbox_diagonal(dense.positions.iter().copied())
         });
@@ -340,12 +166,7 @@ impl State {
             dmax,
             strict: opts.strict,
             max_valence: opts.max_valence,
-            dpos: dense.positions.clone(),
-            dfaces: dense.faces.clone(),
-            dnormal,
-            vf_start,
-            vf,
-            pinched,
+            dense: dd,
             pos: dense.positions.clone(),
             dir: vec![DVec3::ZERO; nv],
             topo,
@@ -355,14 +176,30 @@ impl State {
             grid: DenseGrid::new(&dense.positions),
             face_grid: FaceGrid::new(&dense.positions, &dense.topology),
             max_abs_d: 0.0,
+            unmapped_at_start: 0,
             heap: BinaryHeap::new(),
             queued: HashSet::new(),
             stats: Stats::default(),
         };
         st.dir = (0..nv as u32).into_par_iter().map(|v| st.compute_dir(v)).collect();
+        st.unmapped_at_start = (0..nv as u32)
+            .into_par_iter()
+            .filter(|&v| {
+                let dd = &st.dense;
+                if dd.pinched[v as usize] {
+                    return false;
+                }
+                let ns: Vec<DVec3> = dd.faces_of(v).iter().map(|&f| dd.normal[f as usize]).collect();
+                let sees = |n: DVec3| ns.iter().all(|ni| n.dot(*ni) > 0.0);
+                match st.mode {
+                    NormalMode::Interpolated => !sees(st.dir[v as usize]),
+                    NormalMode::Constant => !ns.iter().any(|&n| sees(n)),
+                }
+            })
+            .count();
         for v in 0..nv as u32 {
-            let f = st.vf[st.vf_start[v as usize] as usize];
-            let k = st.dfaces[f as usize].iter().position(|&x| x == v).unwrap();
+            let f = st.dense.vf[st.dense.vf_start[v as usize] as usize];
+            let k = st.dense.faces[f as usize].iter().position(|&x| x == v).unwrap();
             let mut bary = [0.0; 3];
             bary[k] = 1.0;
             st.assoc.push(Map { face: f, bary, d: 0.0 });
@@ -375,16 +212,6 @@ impl State {
             }
         }
         st
-    }
-
-    pub fn dense(&self) -> DenseAdjacency<'_> {
-        DenseAdjacency {
-            pos: &self.dpos,
-            faces: &self.dfaces,
-            face_normal: &self.dnormal,
-            vf_start: &self.vf_start,
-            vf: &self.vf,
-        }
     }
 
     /// Direction of base vertex `v` from its current fan (the README's rule).
@@ -529,7 +356,7 @@ impl State {
         let mut dense = order_vs.clone();
         dense.sort_unstable();
         c.order = order_vs.iter().map(|v| dense.binary_search(v).unwrap() as u32).collect();
-        let dadj = self.dense();
+        let dadj = &self.dense;
         let mut dense_faces: Vec<u32> = dense.iter().flat_map(|&v| dadj.faces_of(v).iter().copied()).collect();
         dense_faces.sort_unstable();
         dense_faces.dedup();
@@ -594,239 +421,6 @@ impl State {
         out
     }
 
-    /// Builds the neighbourhood of a candidate after collapse with `placement`: region (less
-    /// the deleted faces) and border, with the new directions. Fails on a fold-over.
-    fn build_neighbourhood(&self, c: &Candidate, p: DVec3, tris: &mut Tris) -> Result<(Vec<(u32, DVec3)>, usize), Reject> {
-        tris.clear();
-        let relabel = |v: u32| if v == c.w { c.u } else { v };
-        let pos_of = |v: u32| if v == c.u { p } else { self.pos[v as usize] };
-        let mut crosses: Vec<Vec<DVec3>> = vec![Vec::new(); c.changed.len()];
-        let changed_idx = |v: u32| c.changed.iter().position(|&x| x == v);
-        let mut post: Vec<(u32, [u32; 3], [DVec3; 3])> = Vec::with_capacity(c.region.len() + c.border.len());
-        for &f in c.region.iter().chain(c.border.iter()) {
-            if f == c.removed[0] || f == c.removed[1] {
-                continue;
-            }
-            let old = self.topo.face(f);
-            let verts = old.map(relabel);
-            let pos = verts.map(pos_of);
-            let cr = face_cross(pos[0], pos[1], pos[2]);
-            if verts.contains(&c.u) {
-                // Fold-over: the moved fan must keep its orientation and stay non-degenerate.
-                let oc = face_cross(self.pos[old[0] as usize], self.pos[old[1] as usize], self.pos[old[2] as usize]);
-                if cr.dot(oc) <= 0.0 || cr.length_squared() <= 1e-30 * oc.length_squared().max(1e-300) {
-                    return Err(Reject::Foldover);
-                }
-            }
-            for &v in &verts {
-                if let Some(i) = changed_idx(v) {
-                    crosses[i].push(cr);
-                }
-            }
-            post.push((f, verts, pos));
-        }
-        let n_region = c.region.iter().filter(|&&f| f != c.removed[0] && f != c.removed[1]).count();
-        let mut new_dirs = Vec::with_capacity(c.changed.len());
-        for (i, &v) in c.changed.iter().enumerate() {
-            let d = vertex_direction(&crosses[i]);
-            if self.mode == NormalMode::Interpolated && !crosses[i].iter().all(|cr| cr.dot(d) > 0.0) {
-                return Err(Reject::Foldover);
-            }
-            new_dirs.push((v, d));
-        }
-        let dir_of = |v: u32| match new_dirs.iter().find(|(x, _)| *x == v) {
-            Some((_, d)) => *d,
-            None => self.dir[v as usize],
-        };
-        for (f, verts, pos) in post {
-            tris.push(f, verts, pos, verts.map(dir_of));
-        }
-        tris.finish();
-        Ok((new_dirs, n_region))
-    }
-
-    /// Tests one candidate, placement by placement (SPEC §2 step 5). The first passing
-    /// placement wins; otherwise the first placement's reason is reported.
-    pub fn evaluate_candidate(&self, c: &Candidate) -> Outcome {
-        let mut first_reason = None;
-        let mut tris = Tris::default();
-        let mut scratch = Scratch::default();
-        for (pi, &p) in c.placements.iter().enumerate() {
-            match self.evaluate_placement(c, p, &mut tris, &mut scratch) {
-                Ok(acc) => {
-                    return Ok(Accepted { placement: pi, ..acc });
-                }
-                Err(r) => {
-                    first_reason.get_or_insert(r);
-                }
-            }
-        }
-        Err(first_reason.unwrap_or(Reject::Link))
-    }
-
-    fn evaluate_placement(&self, c: &Candidate, p: DVec3, tris: &mut Tris, scratch: &mut Scratch) -> Result<Accepted, Reject> {
-        let (new_dirs, n_region) = self.build_neighbourhood(c, p, tris)?;
-        let dense = self.dense();
-        let mut maps = vec![Map { face: INVALID, bary: [0.0; 3], d: 0.0 }; c.dense.len()];
-        let mut normals = Vec::new();
-        for &i in &c.order {
-            let v = c.dense[i as usize];
-            let x = self.dpos[v as usize];
-            dense.vertex_normals(v, &mut normals);
-            let pinched = self.pinched[v as usize];
-            match find_primary(x, &normals, tris, self.mode, self.dmax, !pinched, self.strict && !pinched, scratch) {
-                Found::Hit(t, h) => maps[i as usize] = Map { face: tris.ids[t], bary: h.bary, d: h.d },
-                Found::Ambiguous => return Err(Reject::Ambiguous),
-                Found::None if pinched => maps[i as usize] = self.nearest_fallback(x, tris),
-                Found::None => return Err(Reject::Unmapped),
-            }
-        }
-        self.far_primaries(c, tris, &mut maps, scratch);
-        let extras = self.moved_primaries(c, tris, n_region, scratch);
-        let faces_owned;
-        let faces: &[u32] = if extras.is_empty() {
-            &c.dense_faces
-        } else {
-            let mut f = c.dense_faces.clone();
-            for &(v, _) in &extras {
-                f.extend_from_slice(dense.faces_of(v));
-            }
-            f.sort_unstable();
-            f.dedup();
-            faces_owned = f;
-            &faces_owned
-        };
-        let ctx = CandidateContext { st: self, c, tris, maps: &maps, extras: &extras };
-        let tested = |v: u32| c.dense.binary_search(&v).is_ok() || extras.binary_search_by_key(&v, |e| e.0).is_ok();
-        check_faces_and_edges(&ctx, &dense, faces, tested, scratch)?;
-        Ok(Accepted { placement: 0, position: p, new_dirs, maps, extras })
-    }
-
-    /// The region's vertices were solved over region ∪ border; a face outside (the far side of
-    /// a thin part) may hold a solution with a smaller |d|. Any such face lies within |d| of the
-    /// vertex, so one grid query with the largest |d| finds every candidate face.
-    fn far_primaries(&self, c: &Candidate, tris: &Tris, maps: &mut [Map], scratch: &mut Scratch) {
-        let mut lo = DVec3::splat(f64::INFINITY);
-        let mut hi = DVec3::splat(f64::NEG_INFINITY);
-        let mut reach: f64 = 0.0;
-        for (i, &v) in c.dense.iter().enumerate() {
-            if self.pinched[v as usize] || maps[i].d == 0.0 {
-                continue;
-            }
-            let x = self.dpos[v as usize];
-            lo = lo.min(x);
-            hi = hi.max(x);
-            reach = reach.max(maps[i].d.abs());
-        }
-        if reach == 0.0 {
-            return;
-        }
-        let mut faces = Vec::new();
-        self.face_grid.query(lo - DVec3::splat(reach), hi + DVec3::splat(reach), &mut faces);
-        let mut far = Tris::default();
-        for f in faces {
-            if tris.index_of(f).is_some() || c.region.binary_search(&f).is_ok() || !self.topo.face_alive(f) {
-                continue;
-            }
-            let info = self.face_info_current(f);
-            let (ctr, r) = crate::geometry::triangle_sphere(&info.pos);
-            // Skip faces beyond every vertex's reach.
-            let q = ctr.clamp(lo, hi);
-            if q.distance(ctr) - r > reach {
-                continue;
-            }
-            far.push(f, info.verts, info.pos, info.dir);
-        }
-        if far.is_empty() {
-            return;
-        }
-        far.finish();
-        let dense = self.dense();
-        let mut normals = Vec::new();
-        let tie = crate::eval::SAME_SOLUTION_REL * self.dmax;
-        for (i, &v) in c.dense.iter().enumerate() {
-            let cur = maps[i];
-            if self.pinched[v as usize] || cur.d == 0.0 {
-                continue;
-            }
-            let x = self.dpos[v as usize];
-            dense.vertex_normals(v, &mut normals);
-            if let Found::Hit(t, h) = find_primary(x, &normals, &far, self.mode, cur.d.abs() + tie, true, false, scratch) {
-                let (da, db) = (h.d.abs(), cur.d.abs());
-                if da < db - tie || (da <= db + tie && far.ids[t] < cur.face) {
-                    maps[i] = Map { face: far.ids[t], bary: h.bary, d: h.d };
-                }
-            }
-        }
-    }
-
-    /// Dense vertices associated outside the region whose primary solution moves onto it: a
-    /// vertex can only gain a solution on a changed triangle T if its distance to T is below
-    /// its current |d| (|x − X| ≤ |d|), so the grid finds every candidate. Returns their new
-    /// maps, ascending by vertex.
-    fn moved_primaries(&self, c: &Candidate, tris: &Tris, n_region: usize, scratch: &mut Scratch) -> Vec<(u32, Map)> {
-        let reach = self.max_abs_d;
-        if reach <= 0.0 || n_region == 0 {
-            return Vec::new();
-        }
-        let mut lo = DVec3::splat(f64::INFINITY);
-        let mut hi = DVec3::splat(f64::NEG_INFINITY);
-        for t in 0..n_region {
-            for q in tris.pos[t] {
-                lo = lo.min(q);
-                hi = hi.max(q);
-            }
-        }
-        let (blo, bhi) = (lo - DVec3::splat(reach), hi + DVec3::splat(reach));
-        let mut cand = Vec::new();
-        self.grid.query(blo, bhi, |v| {
-            let dv = self.assoc[v as usize].d.abs();
-            if dv == 0.0 || self.pinched[v as usize] {
-                return;
-            }
-            let x = self.dpos[v as usize];
-            if x.clamp(lo, hi).distance(x) >= dv || c.dense.binary_search(&v).is_ok() {
-                return;
-            }
-            cand.push(v);
-        });
-        if cand.is_empty() {
-            return Vec::new();
-        }
-        cand.sort_unstable();
-        let mut region = Tris::default();
-        for t in 0..n_region {
-            region.push(tris.ids[t], tris.verts[t], tris.pos[t], tris.dir[t]);
-        }
-        region.finish();
-        let dense = self.dense();
-        let mut normals = Vec::new();
-        let mut out = Vec::new();
-        for v in cand {
-            let cur = self.assoc[v as usize];
-            let x = self.dpos[v as usize];
-            dense.vertex_normals(v, &mut normals);
-            if let Found::Hit(t, h) = find_primary(x, &normals, &region, self.mode, cur.d.abs(), true, false, scratch) {
-                if h.d.abs() < cur.d.abs() {
-                    out.push((v, Map { face: region.ids[t], bary: h.bary, d: h.d }));
-                }
-            }
-        }
-        out
-    }
-
-    /// Association of a pinched vertex without any solution: the nearest triangle's centre.
-    fn nearest_fallback(&self, x: DVec3, tris: &Tris) -> Map {
-        let mut best = (f64::INFINITY, 0usize);
-        for t in 0..tris.len() {
-            let d = x.distance(tris.sphere[t].0);
-            if d < best.0 {
-                best = (d, t);
-            }
-        }
-        Map { face: tris.ids[best.1], bary: [1.0 / 3.0; 3], d: 0.0 }
-    }
-
     /// Applies accepted candidates in batch order (SPEC §2 step 6). A candidate whose dense
     /// vertices were re-associated by an earlier commit of the same round is stale: it goes
     /// back to the queue untried.
@@ -834,7 +428,7 @@ impl State {
         let (mut s, mut t1, mut t2) = (Vec::new(), Vec::new(), Vec::new());
         for (c, o) in batch.into_iter().zip(outcomes) {
             let stale = {
-                let dfaces = &self.dfaces;
+                let dfaces = &self.dense.faces;
                 let touched = |v: u32| vmark[v as usize] == round;
                 c.dense_faces.iter().any(|&f| dfaces[f as usize].iter().any(|&v| touched(v)))
                     || o.as_ref().map(|a| a.extras.iter().any(|&(v, _)| touched(v))).unwrap_or(false)
@@ -905,7 +499,7 @@ impl State {
     /// Runs rounds until the queue is empty or the target is reached.
     pub fn run(&mut self, evaluator: &dyn Evaluator, opts: &Options, mut progress: impl FnMut(usize)) {
         let mut marks = vec![0u32; self.pos.len()];
-        let mut vmark = vec![0u32; self.dpos.len()];
+        let mut vmark = vec![0u32; self.dense.pos.len()];
         let mut round = 0u32;
         while self.face_count > opts.target_faces.max(1) {
             round += 1;
@@ -981,66 +575,6 @@ impl State {
         BaseMesh { positions, directions, faces, face_map }
     }
 
-    /// From-scratch re-check of the guarantee over every dense vertex's neighbourhood: each
-    /// vertex is solved again over the 2-ring of the base face it is associated with, then
-    /// every dense triangle's orientation and every dense edge's continuity are checked.
-    pub fn recheck(&self) -> Recheck {
-        let nf = self.topo.num_faces_total() as u32;
-        let per_face: Vec<Vec<(u32, Option<Map>)>> = (0..nf)
-            .into_par_iter()
-            .map(|f| {
-                if !self.topo.face_alive(f) || self.face_dense[f as usize].is_empty() {
-                    return Vec::new();
-                }
-                let mut tris = Tris::default();
-                self.two_ring_tris(f, &mut tris);
-                let mut scratch = Scratch::default();
-                let mut normals = Vec::new();
-                let dense = self.dense();
-                self.face_dense[f as usize]
-                    .iter()
-                    .map(|&v| {
-                        dense.vertex_normals(v, &mut normals);
-                        let pinched = self.pinched[v as usize];
-                        let r = match find_primary(self.dpos[v as usize], &normals, &tris, self.mode, self.dmax, !pinched, self.strict && !pinched, &mut scratch) {
-                            Found::Hit(t, h) => Some(Map { face: tris.ids[t], bary: h.bary, d: h.d }),
-                            _ => None,
-                        };
-                        (v, r)
-                    })
-                    .collect()
-            })
-            .collect();
-        let mut maps: Vec<Option<Map>> = vec![None; self.dpos.len()];
-        let mut unmapped = Vec::new();
-        for (v, m) in per_face.into_iter().flatten() {
-            if m.is_none() && !self.pinched[v as usize] {
-                unmapped.push(v);
-            }
-            maps[v as usize] = m;
-        }
-        unmapped.sort_unstable();
-        let ctx = GlobalContext { st: self, maps: &maps };
-        let dense = self.dense();
-        let failures: Vec<(u32, Reject)> = (0..self.dfaces.len() as u32)
-            .into_par_iter()
-            .filter_map(|f| {
-                let mut scratch = Scratch::default();
-                check_faces_and_edges(&ctx, &dense, &[f], |_| true, &mut scratch).err().map(|r| (f, r))
-            })
-            .collect();
-        let flipped = failures.iter().filter(|(_, r)| *r == Reject::Flip).map(|(f, _)| *f).collect();
-        let torn = failures.iter().filter(|(_, r)| *r == Reject::Tear).map(|(f, _)| *f).collect();
-        let max_abs_d = maps.iter().flatten().map(|m| m.d.abs()).fold(0.0, f64::max);
-        Recheck {
-            unmapped,
-            flipped,
-            torn,
-            pinched: self.pinched.iter().filter(|&&p| p).count(),
-            max_abs_d,
-        }
-    }
-
     /// Triangles of the 2-ring around face `f` (faces sharing a vertex with f, and theirs).
     pub fn two_ring_tris(&self, f: u32, tris: &mut Tris) {
         let (mut s, mut tmp) = (Vec::new(), Vec::new());
@@ -1076,45 +610,11 @@ impl State {
         fs.into_iter().find(|&f| verts.iter().all(|v| self.topo.face(f).contains(v)))
     }
 
-    fn face_info_current(&self, f: u32) -> FaceInfo {
+    pub(crate) fn face_info_current(&self, f: u32) -> FaceInfo {
         let verts = self.topo.face(f);
         FaceInfo { verts, pos: verts.map(|v| self.pos[v as usize]), dir: verts.map(|v| self.dir[v as usize]) }
     }
 
-}
-
-/// (genus, boundary loops) of a single-component mesh from its Euler characteristic.
-pub fn topology_summary(nv: usize, faces: &[[u32; 3]]) -> (i64, usize) {
-    let topo = Topology::build(nv, faces).expect("base mesh stays manifold");
-    let mut seen = vec![false; topo.corner.len()];
-    let mut loops = 0;
-    let mut s = Vec::new();
-    let mut edges2 = 0usize;
-    for h in 0..topo.corner.len() as u32 {
-        if topo.opp[h as usize] == INVALID {
-            edges2 += 2;
-            if !seen[h as usize] {
-                loops += 1;
-                // Mark the loop.
-                let mut cur = h;
-                loop {
-                    seen[cur as usize] = true;
-                    topo.outgoing(topo.to(cur), &mut s);
-                    match s.iter().copied().find(|&g| topo.opp[g as usize] == INVALID) {
-                        Some(g) if !seen[g as usize] => cur = g,
-                        _ => break,
-                    }
-                }
-            }
-        } else {
-            edges2 += 1;
-        }
-    }
-    let e = edges2 / 2;
-    let chi = nv as i64 - e as i64 + faces.len() as i64;
-    // chi = 2 - 2g - b for one component.
-    let genus = (2 - chi - loops as i64) / 2;
-    (genus, loops)
 }
 
 /// The compacted base mesh.
@@ -1125,134 +625,4 @@ pub struct BaseMesh {
     pub faces: Vec<[u32; 3]>,
     /// Internal face id → output face id (INVALID for deleted faces).
     pub face_map: Vec<u32>,
-}
-
-/// Result of [`State::recheck`].
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct Recheck {
-    pub unmapped: Vec<u32>,
-    pub flipped: Vec<u32>,
-    pub torn: Vec<u32>,
-    pub pinched: usize,
-    pub max_abs_d: f64,
-}
-
-impl Recheck {
-    pub fn ok(&self) -> bool {
-        self.unmapped.is_empty() && self.flipped.is_empty() && self.torn.is_empty()
-    }
-}
-
-/// Map context during a candidate's evaluation: tested vertices use the new maps and the
-/// collapsed neighbourhood; everything else the committed state.
-struct CandidateContext<'a> {
-    st: &'a State,
-    c: &'a Candidate,
-    tris: &'a Tris,
-    maps: &'a [Map],
-    extras: &'a [(u32, Map)],
-}
-
-impl MapContext for CandidateContext<'_> {
-    fn map_of(&self, v: u32) -> Option<Map> {
-        if self.st.pinched[v as usize] {
-            return None;
-        }
-        if let Ok(i) = self.c.dense.binary_search(&v) {
-            return Some(self.maps[i]);
-        }
-        match self.extras.binary_search_by_key(&v, |e| e.0) {
-            Ok(i) => Some(self.extras[i].1),
-            Err(_) => Some(self.st.assoc[v as usize]),
-        }
-    }
-    fn face_info(&self, face: u32) -> FaceInfo {
-        match self.tris.index_of(face) {
-            Some(t) => FaceInfo { verts: self.tris.verts[t], pos: self.tris.pos[t], dir: self.tris.dir[t] },
-            None => self.st.face_info_current(face),
-        }
-    }
-    fn face_containing(&self, verts: &[u32]) -> Option<u32> {
-        let holds = |t: &[u32; 3]| verts.iter().all(|v| t.contains(v));
-        if let Some(t) = self.tris.verts.iter().position(holds) {
-            return Some(self.tris.ids[t]);
-        }
-        // Unchanged faces: around a vertex whose fan did not change, outside the region (a
-        // changed vertex's faces are all in the neighbourhood).
-        let v0 = verts[0];
-        if v0 == self.c.w || self.c.changed.contains(&v0) || verts.contains(&self.c.w) {
-            return None;
-        }
-        let (mut s, mut fs) = (Vec::new(), Vec::new());
-        self.st.topo.faces_around(v0, &mut s, &mut fs);
-        fs.into_iter().find(|&f| holds(&self.st.topo.face(f)) && self.c.region.binary_search(&f).is_err())
-    }
-    fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map> {
-        // The neighbourhood, plus the (unchanged) faces around an end that maps outside it.
-        if self.tris.index_of(fa).is_some() && self.tris.index_of(fb).is_some() {
-            return match find_primary(x, normals, self.tris, self.st.mode, self.st.dmax, true, false, scratch) {
-                Found::Hit(t, h) => Some(Map { face: self.tris.ids[t], bary: h.bary, d: h.d }),
-                _ => None,
-            };
-        }
-        let mut tris = self.tris.clone();
-        let (mut s, mut tmp) = (Vec::new(), Vec::new());
-        for f in [fa, fb] {
-            if self.tris.index_of(f).is_some() {
-                continue;
-            }
-            for v in self.st.topo.face(f) {
-                self.st.topo.faces_around(v, &mut s, &mut tmp);
-                for &g in &tmp {
-                    if tris.index_of(g).is_none() {
-                        let info = self.st.face_info_current(g);
-                        tris.push(g, info.verts, info.pos, info.dir);
-                    }
-                }
-            }
-        }
-        tris.finish();
-        match find_primary(x, normals, &tris, self.st.mode, self.st.dmax, true, false, scratch) {
-            Found::Hit(t, h) => Some(Map { face: tris.ids[t], bary: h.bary, d: h.d }),
-            _ => None,
-        }
-    }
-}
-
-/// Map context of the re-check: recomputed maps, current base mesh.
-struct GlobalContext<'a> {
-    st: &'a State,
-    maps: &'a [Option<Map>],
-}
-
-impl MapContext for GlobalContext<'_> {
-    fn map_of(&self, v: u32) -> Option<Map> {
-        if self.st.pinched[v as usize] {
-            return None;
-        }
-        // An unmapped vertex is already counted; its triangles cannot be drawn.
-        self.maps[v as usize]
-    }
-    fn face_info(&self, face: u32) -> FaceInfo {
-        self.st.face_info_current(face)
-    }
-    fn face_containing(&self, verts: &[u32]) -> Option<u32> {
-        self.st.face_containing(verts)
-    }
-    fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map> {
-        let mut tris = Tris::default();
-        self.st.two_ring_tris(fa, &mut tris);
-        let mut more = Tris::default();
-        self.st.two_ring_tris(fb, &mut more);
-        for t in 0..more.len() {
-            if tris.index_of(more.ids[t]).is_none() {
-                tris.push(more.ids[t], more.verts[t], more.pos[t], more.dir[t]);
-            }
-        }
-        tris.finish();
-        match find_primary(x, normals, &tris, self.st.mode, self.st.dmax, true, false, scratch) {
-            Found::Hit(t, h) => Some(Map { face: tris.ids[t], bary: h.bary, d: h.d }),
-            _ => None,
-        }
-    }
 }

@@ -12,6 +12,7 @@ use crate::geometry::{
     triangle_sphere,
     ShellHit,
 };
+use crate::mesh::DenseData;
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -326,61 +327,100 @@ pub fn image_positive<C: MapContext>(ctx: &C, m: [Map; 3]) -> bool {
     }
     // The base vertices carrying each point (one for a point on a vertex, two on an edge).
     let sup = [support(&fi[0], &m[0]), support(&fi[1], &m[1]), support(&fi[2], &m[2])];
-    let mut all: Vec<u32> = sup.iter().flatten().copied().collect();
-    all.sort_unstable();
-    all.dedup();
-    if all.len() <= 3 {
-        if let Some(f) = ctx.face_containing(&all) {
-            let target = ctx.face_info(f).verts;
-            let on = |i: usize| on_face(&fi[i].verts, &m[i].bary, &target);
-            if let (Some(a), Some(b), Some(c)) = (on(0), on(1), on(2)) {
-                return orient2(a, b, c) > 0.0;
-            }
-        }
-    }
-    // A base vertex whose closed star holds all three points; of several, the one nearest the
-    // image's centroid (a geometric choice: the verdict depends neither on which equivalent face
-    // represents a point nor on the numbering of the base mesh).
-    let mut cands: Vec<u32> = all.clone();
-    cands.extend(fi.iter().flat_map(|f| f.verts));
-    cands.sort_unstable();
-    cands.dedup();
     let x = [image_point(&fi[0], &m[0].bary), image_point(&fi[1], &m[1].bary), image_point(&fi[2], &m[2].bary)];
     let centroid = (x[0] + x[1] + x[2]) / 3.0;
     let mut best: Option<(f64, DVec3)> = None;
-    for v in cands {
-        if let Some((dir, pos)) = star_direction(ctx, v, &sup) {
-            let dist = pos.distance(centroid);
-            if best.is_none_or(|b| dist < b.0) {
-                best = Some((dist, dir));
+    let mut consider = |dir: DVec3, pos: DVec3| {
+        let dist = pos.distance(centroid);
+        if best.is_none_or(|b| dist < b.0) {
+            best = Some((dist, dir));
+        }
+    };
+    if sup.iter().all(|s| s.len() == 3) {
+        // Interior points: the chart vertices are exactly the faces' common vertices.
+        for k in 0..3 {
+            let v = fi[0].verts[k];
+            if fi[1].verts.contains(&v) && fi[2].verts.contains(&v) {
+                consider(fi[0].dir[k], fi[0].pos[k]);
+            }
+        }
+    } else {
+        let mut all: Vec<u32> = sup.iter().flat_map(|s| s.as_slice().iter().copied()).collect();
+        all.sort_unstable();
+        all.dedup();
+        if all.len() <= 3 {
+            if let Some(f) = ctx.face_containing(&all) {
+                let target = ctx.face_info(f).verts;
+                let on = |i: usize| on_face(&fi[i].verts, &m[i].bary, &target);
+                if let (Some(a), Some(b), Some(c)) = (on(0), on(1), on(2)) {
+                    return orient2(a, b, c) > 0.0;
+                }
+            }
+        }
+        // A base vertex whose closed star holds all three points.
+        let mut cands = all;
+        cands.extend(fi.iter().flat_map(|f| f.verts));
+        cands.sort_unstable();
+        cands.dedup();
+        for v in cands {
+            if let Some((dir, pos)) = star_direction(ctx, v, &sup) {
+                consider(dir, pos);
             }
         }
     }
-    if let Some((_, dir)) = best {
-        return (x[1] - x[0]).cross(x[2] - x[0]).dot(dir) > 0.0;
-    }
-    let n_ref: DVec3 = fi.iter().map(|f| geometry::face_normal(f.pos[0], f.pos[1], f.pos[2])).sum();
+    // Of several chart vertices, the one nearest the image's centroid: a geometric choice, so
+    // that the verdict depends neither on which equivalent face represents a point nor on the
+    // numbering of the base mesh.
+    let n_ref = match best {
+        Some((_, dir)) => dir,
+        None => fi.iter().map(|f| geometry::face_normal(f.pos[0], f.pos[1], f.pos[2])).sum(),
+    };
     (x[1] - x[0]).cross(x[2] - x[0]).dot(n_ref) > 0.0
 }
 
 /// The base vertices carrying a point: those with a non-zero barycentric weight.
-fn support(face: &FaceInfo, m: &Map) -> Vec<u32> {
-    (0..3).filter(|&k| m.bary[k] > geometry::BARY_EPS).map(|k| face.verts[k]).collect()
+#[derive(Clone, Copy, Debug)]
+struct Support {
+    v: [u32; 3],
+    n: usize,
+}
+
+impl Support {
+    fn len(&self) -> usize {
+        self.n
+    }
+    fn as_slice(&self) -> &[u32] {
+        &self.v[..self.n]
+    }
+}
+
+fn support(face: &FaceInfo, m: &Map) -> Support {
+    let mut s = Support { v: [0; 3], n: 0 };
+    for k in 0..3 {
+        if m.bary[k] > geometry::BARY_EPS {
+            s.v[s.n] = face.verts[k];
+            s.n += 1;
+        }
+    }
+    s
 }
 
 /// The direction and position of vertex `v` when every support set lies in a face with `v` (the
 /// points are in `v`'s closed star), else `None`.
-fn star_direction<C: MapContext>(ctx: &C, v: u32, sup: &[Vec<u32>]) -> Option<(DVec3, DVec3)> {
+fn star_direction<C: MapContext>(ctx: &C, v: u32, sup: &[Support]) -> Option<(DVec3, DVec3)> {
     let mut dir = None;
     for s in sup {
-        let mut q = s.clone();
-        if !q.contains(&v) {
-            q.push(v);
+        let mut q = [0u32; 4];
+        q[..s.n].copy_from_slice(s.as_slice());
+        let mut n = s.n;
+        if !s.as_slice().contains(&v) {
+            q[n] = v;
+            n += 1;
         }
-        if q.len() > 3 {
+        if n > 3 {
             return None;
         }
-        let f = ctx.face_containing(&q)?;
+        let f = ctx.face_containing(&q[..n])?;
         if dir.is_none() {
             let info = ctx.face_info(f);
             dir = info.verts.iter().position(|&w| w == v).map(|k| (info.dir[k], info.pos[k]));
@@ -428,40 +468,11 @@ pub fn edge_continuous<C: MapContext>(
         && edge_continuous(ctx, mid, mm, pb, mb, normals, depth - 1, scratch)
 }
 
-/// Dense-mesh adjacency the checks need (immutable during a run).
-pub struct DenseAdjacency<'a> {
-    pub pos: &'a [DVec3],
-    pub faces: &'a [[u32; 3]],
-    pub face_normal: &'a [DVec3],
-    pub vf_start: &'a [u32],
-    pub vf: &'a [u32],
-}
-
-impl DenseAdjacency<'_> {
-    pub fn faces_of(&self, v: u32) -> &[u32] {
-        &self.vf[self.vf_start[v as usize] as usize..self.vf_start[v as usize + 1] as usize]
-    }
-    /// Unit normals of the faces around `v` (condition (4) of a vertex).
-    pub fn vertex_normals(&self, v: u32, out: &mut Vec<DVec3>) {
-        out.clear();
-        out.extend(self.faces_of(v).iter().map(|&f| self.face_normal[f as usize]));
-    }
-    /// Unit normals of the (one or two) faces on edge (a, b).
-    pub fn edge_normals(&self, a: u32, b: u32, out: &mut Vec<DVec3>) {
-        out.clear();
-        for &f in self.faces_of(a) {
-            if self.faces[f as usize].contains(&b) {
-                out.push(self.face_normal[f as usize]);
-            }
-        }
-    }
-}
-
 /// Checks the dense triangles `faces` (orientation) and their edges with at least one endpoint
 /// in `tested` (continuity). Returns the first failure.
 pub fn check_faces_and_edges<C: MapContext>(
     ctx: &C,
-    dense: &DenseAdjacency,
+    dense: &DenseData,
     faces: &[u32],
     tested: impl Fn(u32) -> bool,
     scratch: &mut Scratch,

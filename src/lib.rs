@@ -5,16 +5,20 @@
 //! - [`mesh`]: mesh types, OBJ/PLY input, input checks, OBJ output;
 //! - [`topology`]: half-edges on flat `u32` arrays, link condition, edge collapse;
 //! - [`geometry`]: pure kernels (normals, shell inversion, condition (4));
-//! - [`eval`]: the [`eval::Evaluator`] trait and the CPU evaluator;
+//! - [`eval`]: the [`eval::Evaluator`] trait, the CPU evaluator, primary search, flip and tear tests;
+//! - [`local`]: the local test of one candidate collapse;
 //! - [`decimate`]: queue, association, batch scheduler, commit;
+//! - [`grid`]: uniform grids over dense vertices and base faces (the searches for smaller |d|);
 //! - [`mapfile`]: the `BASE.map` binary format;
 //! - [`run`]: the library side of the `decimate` command (options in, files and report out);
 //! - [`sample`]: the generator of the scan-like sample meshes in `data/`;
-//! - [`validate`]: the global check of a base mesh against its scan.
+//! - [`validate`]: the global check of a base mesh against its scan, and the local re-check.
 
 pub mod decimate;
 pub mod eval;
 pub mod geometry;
+pub mod grid;
+pub mod local;
 pub mod mapfile;
 pub mod mesh;
 pub mod run;

@@ -1,6 +1,8 @@
 //! Mesh types, OBJ/PLY input (plain or gzip), OBJ output, and the input checks.
 
+use crate::geometry::{face_normal, maxmin_direction};
 use crate::topology::{Topology, TopologyError};
+use rayon::prelude::*;
 use crate::Error;
 use glam::DVec3;
 use std::io::{BufRead, BufReader, Read};
@@ -162,6 +164,82 @@ pub fn check_and_compact(path: &Path, mesh: Mesh) -> Result<DenseMesh, Error> {
     })?;
     Ok(DenseMesh { positions, faces, input_index, input_vertex_count: n, topology })
 }
+
+/// Faces around each vertex, as CSR arrays (start, faces).
+pub fn vertex_faces(nv: usize, faces: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let mut start = vec![0u32; nv + 1];
+    for f in faces {
+        for &v in f {
+            start[v as usize + 1] += 1;
+        }
+    }
+    for i in 0..nv {
+        start[i + 1] += start[i];
+    }
+    let mut fill = start.clone();
+    let mut vf = vec![0u32; start[nv] as usize];
+    for (fi, f) in faces.iter().enumerate() {
+        for &v in f {
+            vf[fill[v as usize] as usize] = fi as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    (start, vf)
+}
+
+/// A dense mesh as the checks use it: unit face normals, faces around each vertex (CSR) and the
+/// pinched vertices, whose own face normals admit no common direction.
+pub struct DenseData {
+    pub pos: Vec<DVec3>,
+    pub faces: Vec<[u32; 3]>,
+    pub normal: Vec<DVec3>,
+    pub vf_start: Vec<u32>,
+    pub vf: Vec<u32>,
+    pub pinched: Vec<bool>,
+}
+
+impl DenseData {
+    pub fn new(pos: &[DVec3], faces: &[[u32; 3]]) -> DenseData {
+        let nv = pos.len();
+        let normal: Vec<DVec3> = faces
+            .iter()
+            .map(|f| face_normal(pos[f[0] as usize], pos[f[1] as usize], pos[f[2] as usize]))
+            .collect();
+        let (vf_start, vf) = vertex_faces(nv, faces);
+        let pinched = (0..nv)
+            .into_par_iter()
+            .map(|v| {
+                let ns: Vec<DVec3> =
+                    vf[vf_start[v] as usize..vf_start[v + 1] as usize].iter().map(|&f| normal[f as usize]).collect();
+                let mean = ns.iter().copied().sum::<DVec3>().normalize_or_zero();
+                if ns.iter().all(|n| n.dot(mean) > 0.0) {
+                    return false;
+                }
+                maxmin_direction(&ns).is_none()
+            })
+            .collect();
+        DenseData { pos: pos.to_vec(), faces: faces.to_vec(), normal, vf_start, vf, pinched }
+    }
+
+    pub fn faces_of(&self, v: u32) -> &[u32] {
+        &self.vf[self.vf_start[v as usize] as usize..self.vf_start[v as usize + 1] as usize]
+    }
+    /// Unit normals of the faces around `v` (condition (4) of a vertex).
+    pub fn vertex_normals(&self, v: u32, out: &mut Vec<DVec3>) {
+        out.clear();
+        out.extend(self.faces_of(v).iter().map(|&f| self.normal[f as usize]));
+    }
+    /// Unit normals of the (one or two) faces on edge (a, b).
+    pub fn edge_normals(&self, a: u32, b: u32, out: &mut Vec<DVec3>) {
+        out.clear();
+        for &f in self.faces_of(a) {
+            if self.faces[f as usize].contains(&b) {
+                out.push(self.normal[f as usize]);
+            }
+        }
+    }
+}
+
 
 // ---------------------------------------------------------------------------------------------
 // OBJ
@@ -376,9 +454,21 @@ fn load_ply(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
 // ---------------------------------------------------------------------------------------------
 // Output
 
-/// Writes `bytes` to `path` atomically: a temporary file beside it, then a rename.
+/// Writes `bytes` to `path` atomically: a temporary file beside it, then a rename, so that a
+/// failed run leaves no partial file. A target that exists and is not a regular file (a device
+/// such as `/dev/null`, a FIFO) is written in place: renaming over it would replace it.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), Error> {
     use std::io::Write;
+    let out_err = |e: std::io::Error| Error::Output { path: path.display().to_string(), msg: e.to_string() };
+    if let Ok(meta) = std::fs::metadata(path) {
+        if !meta.is_file() {
+            if meta.is_dir() {
+                return Err(Error::Output { path: path.display().to_string(), msg: "is a directory".into() });
+            }
+            let mut f = std::fs::OpenOptions::new().write(true).open(path).map_err(out_err)?;
+            return f.write_all(bytes).map_err(out_err);
+        }
+    }
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = path.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_else(|| "out".into());
     let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
@@ -390,7 +480,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), Error> {
     })();
     res.map_err(|e| {
         let _ = std::fs::remove_file(&tmp);
-        Error::Output { path: path.display().to_string(), msg: e.to_string() }
+        out_err(e)
     })
 }
 
@@ -416,6 +506,23 @@ pub fn obj_with_normals(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn atomic_write_keeps_special_files() {
+        // Writing to /dev/null must not replace the device with a regular file.
+        write_atomic(Path::new("/dev/null"), b"hello").unwrap();
+        let meta = std::fs::metadata("/dev/null").unwrap();
+        assert!(!meta.is_file(), "/dev/null must stay a device");
+        let dir = std::env::temp_dir().join(format!("dispdec-atomic-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("a.txt");
+        write_atomic(&p, b"one").unwrap();
+        write_atomic(&p, b"two").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"two");
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1, "no temporary file left");
+        assert!(write_atomic(&dir, b"x").is_err(), "a directory is refused");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn tristrip_decoding_alternates_winding() {

@@ -1,6 +1,8 @@
 //! The library side of `dispdec decimate`: load, decimate, re-check, write (atomically), report.
 
-use crate::decimate::{topology_summary, Options, Recheck, State, Stats};
+use crate::decimate::{Options, State, Stats};
+use crate::topology::topology_summary;
+use crate::validate::Recheck;
 use crate::eval::{CpuEvaluator, Evaluator, NormalMode};
 use crate::mapfile::{MapFile, Record, STATUS_MAPPED, STATUS_PINCHED, STATUS_UNREFERENCED};
 use crate::mesh::{self, write_atomic};
@@ -42,6 +44,8 @@ pub struct RecheckSummary {
     pub flipped: usize,
     pub torn: usize,
     pub pinched: usize,
+    /// (strict mode) vertices with more than one solution satisfying (4) on their 2-ring.
+    pub ambiguous: usize,
     pub first_unmapped: Vec<u32>,
 }
 
@@ -65,6 +69,9 @@ pub struct Report {
     pub threads: usize,
     pub dmax: f64,
     pub max_abs_d: f64,
+    /// Dense vertices failing condition (4) on the initial base, the scan itself (constant
+    /// mode only: a vertex there sees only its own faces' normals).
+    pub unmapped_at_start: usize,
     pub backend: String,
     pub adapter: String,
     pub collapses: Stats,
@@ -130,7 +137,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
 
     let base = state.compact();
     let global = crate::validate::validate(
-        &crate::validate::DenseData::new(&dense.positions, &dense.faces),
+        &state.dense,
         &crate::validate::Base { positions: base.positions.clone(), directions: base.directions.clone(), faces: base.faces.clone() },
         job.options.normals,
         state.dmax,
@@ -152,7 +159,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         for (v, m) in state.assoc.iter().enumerate() {
             records[dense.input_index[v] as usize] = Record {
                 face: base.face_map[m.face as usize],
-                status: if state.pinched[v] { STATUS_PINCHED } else { STATUS_MAPPED },
+                status: if state.dense.pinched[v] { STATUS_PINCHED } else { STATUS_MAPPED },
                 bary: m.bary.map(|b| b as f32),
                 d: m.d as f32,
             };
@@ -184,6 +191,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         threads: rayon::current_num_threads(),
         dmax: state.dmax,
         max_abs_d: recheck.max_abs_d,
+        unmapped_at_start: state.unmapped_at_start,
         backend: "cpu".into(),
         adapter: evaluator.name(),
         collapses: state.stats.clone(),
@@ -193,6 +201,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
             flipped: recheck.flipped.len(),
             torn: recheck.torn.len(),
             pinched: recheck.pinched,
+            ambiguous: recheck.ambiguous,
             first_unmapped: recheck.unmapped.iter().take(10).map(|&v| dense.input_index[v as usize]).collect(),
         },
         global,

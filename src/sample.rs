@@ -144,7 +144,7 @@ mod tests {
         let m = generate(SampleSpec { faces: 10_000, seed: 1 });
         assert!((9_000..11_000).contains(&m.faces.len()));
         let d = crate::mesh::check_and_compact(std::path::Path::new("sample"), m).unwrap();
-        let (genus, loops) = crate::decimate::topology_summary(d.positions.len(), &d.faces);
+        let (genus, loops) = crate::topology::topology_summary(d.positions.len(), &d.faces);
         assert_eq!((genus, loops), (0, 1));
     }
 }

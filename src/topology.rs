@@ -80,9 +80,30 @@ impl Topology {
         for f in faces {
             corner.extend_from_slice(f);
         }
+        let key = |a: u32, b: u32| ((a as u64) << 32) | b as u64;
+        // An edge with more than two faces is non-manifold whatever their winding: check that
+        // first, reporting the one whose first face comes first.
+        let mut undirected: Vec<(u64, u32)> = (0..nh as u32)
+            .map(|h| {
+                let (a, b) = (corner[h as usize], corner[next(h) as usize]);
+                (key(a.min(b), a.max(b)), face_of(h))
+            })
+            .collect();
+        undirected.sort_unstable();
+        let mut worst: Option<(u64, Vec<u32>)> = None;
+        for run in undirected.chunk_by(|x, y| x.0 == y.0) {
+            if run.len() > 2 {
+                let fs: Vec<u32> = run.iter().map(|x| x.1).collect();
+                if worst.as_ref().is_none_or(|w| fs[0] < w.1[0]) {
+                    worst = Some((run[0].0, fs));
+                }
+            }
+        }
+        if let Some((k, fs)) = worst {
+            return Err(TopologyError::NonManifoldEdge { a: (k >> 32) as u32, b: k as u32, faces: fs });
+        }
         let mut opp = vec![INVALID; nh];
         let mut directed: HashMap<u64, u32> = HashMap::with_capacity(nh);
-        let key = |a: u32, b: u32| ((a as u64) << 32) | b as u64;
         for h in 0..nh as u32 {
             let (a, b) = (corner[h as usize], corner[next(h) as usize]);
             if let Some(&other) = directed.get(&key(a, b)) {
@@ -99,30 +120,6 @@ impl Topology {
             if let Some(&o) = directed.get(&key(b, a)) {
                 opp[h as usize] = o;
             }
-        }
-        // An edge used by three or more faces shows up as an undirected pair with more than
-        // one half-edge per direction, which the directed map already rejected, or as a
-        // directed half-edge whose reverse appears in two faces; check undirected counts.
-        let mut undirected: HashMap<u64, (u32, Vec<u32>)> = HashMap::new();
-        for h in 0..nh as u32 {
-            let (a, b) = (corner[h as usize], corner[next(h) as usize]);
-            let k = key(a.min(b), a.max(b));
-            let e = undirected.entry(k).or_insert((0, Vec::new()));
-            e.0 += 1;
-            e.1.push(face_of(h));
-        }
-        let mut worst: Option<(u64, Vec<u32>)> = None;
-        for (k, (count, fs)) in undirected {
-            if count > 2 {
-                let first_face = *fs.iter().min().unwrap();
-                if worst.as_ref().is_none_or(|w| first_face < *w.1.iter().min().unwrap()) {
-                    worst = Some((k, fs));
-                }
-            }
-        }
-        if let Some((k, mut fs)) = worst {
-            fs.sort_unstable();
-            return Err(TopologyError::NonManifoldEdge { a: (k >> 32) as u32, b: k as u32, faces: fs });
         }
         let mut vert_he = vec![INVALID; num_vertices];
         let mut outgoing_count = vec![0u32; num_vertices];
@@ -322,6 +319,40 @@ impl Topology {
         }
         removed
     }
+}
+
+/// (genus, boundary loops) of a single-component mesh from its Euler characteristic.
+pub fn topology_summary(nv: usize, faces: &[[u32; 3]]) -> (i64, usize) {
+    let topo = Topology::build(nv, faces).expect("base mesh stays manifold");
+    let mut seen = vec![false; topo.corner.len()];
+    let mut loops = 0;
+    let mut s = Vec::new();
+    let mut edges2 = 0usize;
+    for h in 0..topo.corner.len() as u32 {
+        if topo.opp[h as usize] == INVALID {
+            edges2 += 2;
+            if !seen[h as usize] {
+                loops += 1;
+                // Mark the loop.
+                let mut cur = h;
+                loop {
+                    seen[cur as usize] = true;
+                    topo.outgoing(topo.to(cur), &mut s);
+                    match s.iter().copied().find(|&g| topo.opp[g as usize] == INVALID) {
+                        Some(g) if !seen[g as usize] => cur = g,
+                        _ => break,
+                    }
+                }
+            }
+        } else {
+            edges2 += 1;
+        }
+    }
+    let e = edges2 / 2;
+    let chi = nv as i64 - e as i64 + faces.len() as i64;
+    // chi = 2 - 2g - b for one component.
+    let genus = (2 - chi - loops as i64) / 2;
+    (genus, loops)
 }
 
 #[cfg(test)]

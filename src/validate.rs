@@ -5,11 +5,10 @@
 //! Triangles are visited best-first by a lower bound on |d| (the distance from the point to a
 //! BVH node's box, then to the triangle), so a vertex costs a handful of cubic solves.
 
-use crate::eval::{
-    check_faces_and_edges, find_primary, DenseAdjacency, FaceInfo, Found, Map, MapContext, NormalMode, Reject,
-    Scratch, Tris,
-};
-use crate::geometry::{face_normal, maxmin_direction, triangle_distance};
+use crate::eval::{check_faces_and_edges, find_primary, FaceInfo, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
+use crate::geometry::triangle_distance;
+use crate::decimate::State;
+use crate::mesh::{vertex_faces, DenseData};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -243,76 +242,10 @@ impl MapContext for ValidateContext<'_> {
     }
 }
 
-/// Faces around each vertex, as CSR arrays (start, faces).
-pub fn vertex_faces(nv: usize, faces: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
-    let mut start = vec![0u32; nv + 1];
-    for f in faces {
-        for &v in f {
-            start[v as usize + 1] += 1;
-        }
-    }
-    for i in 0..nv {
-        start[i + 1] += start[i];
-    }
-    let mut fill = start.clone();
-    let mut vf = vec![0u32; start[nv] as usize];
-    for (fi, f) in faces.iter().enumerate() {
-        for &v in f {
-            vf[fill[v as usize] as usize] = fi as u32;
-            fill[v as usize] += 1;
-        }
-    }
-    (start, vf)
-}
-
-/// Dense adjacency and pinched flags of a dense mesh.
-pub struct DenseData {
-    pub pos: Vec<DVec3>,
-    pub faces: Vec<[u32; 3]>,
-    pub normal: Vec<DVec3>,
-    pub vf_start: Vec<u32>,
-    pub vf: Vec<u32>,
-    pub pinched: Vec<bool>,
-}
-
-impl DenseData {
-    pub fn new(pos: &[DVec3], faces: &[[u32; 3]]) -> DenseData {
-        let nv = pos.len();
-        let normal: Vec<DVec3> = faces
-            .iter()
-            .map(|f| face_normal(pos[f[0] as usize], pos[f[1] as usize], pos[f[2] as usize]))
-            .collect();
-        let (vf_start, vf) = vertex_faces(nv, faces);
-        let pinched = (0..nv)
-            .into_par_iter()
-            .map(|v| {
-                let ns: Vec<DVec3> =
-                    vf[vf_start[v] as usize..vf_start[v + 1] as usize].iter().map(|&f| normal[f as usize]).collect();
-                let mean = ns.iter().copied().sum::<DVec3>().normalize_or_zero();
-                if ns.iter().all(|n| n.dot(mean) > 0.0) {
-                    return false;
-                }
-                maxmin_direction(&ns).is_none()
-            })
-            .collect();
-        DenseData { pos: pos.to_vec(), faces: faces.to_vec(), normal, vf_start, vf, pinched }
-    }
-
-    pub fn adjacency(&self) -> DenseAdjacency<'_> {
-        DenseAdjacency {
-            pos: &self.pos,
-            faces: &self.faces,
-            face_normal: &self.normal,
-            vf_start: &self.vf_start,
-            vf: &self.vf,
-        }
-    }
-}
-
 /// Judges `base` against the dense mesh over the whole base mesh.
 pub fn validate(dense: &DenseData, base: &Base, mode: NormalMode, dmax: f64) -> Verdict {
     let bvh = Bvh::build(base);
-    let adj = dense.adjacency();
+    let adj = dense;
     let maps: Vec<Option<Map>> = (0..dense.pos.len() as u32)
         .into_par_iter()
         .map_init(
@@ -357,5 +290,135 @@ pub fn validate(dense: &DenseData, base: &Base, mode: NormalMode, dmax: f64) -> 
         torn,
         max_abs_d: maps.iter().flatten().map(|m| m.d.abs()).fold(0.0, f64::max),
         first_unmapped: unmapped.into_iter().take(10).collect(),
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The local re-check of a decimation state.
+
+impl State {
+    /// From-scratch re-check of the guarantee over every dense vertex's neighbourhood: each
+    /// vertex is solved again over the 2-ring of the base face it is associated with, then
+    /// every dense triangle's orientation and every dense edge's continuity are checked.
+    pub fn recheck(&self) -> Recheck {
+        let nf = self.topo.num_faces_total() as u32;
+        let per_face: Vec<Vec<(u32, Option<Map>, bool)>> = (0..nf)
+            .into_par_iter()
+            .map(|f| {
+                if !self.topo.face_alive(f) || self.face_dense[f as usize].is_empty() {
+                    return Vec::new();
+                }
+                let mut tris = Tris::default();
+                self.two_ring_tris(f, &mut tris);
+                let mut scratch = Scratch::default();
+                let mut normals = Vec::new();
+                let dense = &self.dense;
+                self.face_dense[f as usize]
+                    .iter()
+                    .map(|&v| {
+                        dense.vertex_normals(v, &mut normals);
+                        let pinched = self.dense.pinched[v as usize];
+                        let x = self.dense.pos[v as usize];
+                        let r = match find_primary(x, &normals, &tris, self.mode, self.dmax, !pinched, false, &mut scratch) {
+                            Found::Hit(t, h) => Some(Map { face: tris.ids[t], bary: h.bary, d: h.d }),
+                            _ => None,
+                        };
+                        // The paper's uniqueness, reported (over this 2-ring) in strict mode.
+                        let ambiguous = self.strict
+                            && !pinched
+                            && find_primary(x, &normals, &tris, self.mode, self.dmax, true, true, &mut scratch) == Found::Ambiguous;
+                        (v, r, ambiguous)
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut maps: Vec<Option<Map>> = vec![None; self.dense.pos.len()];
+        let mut unmapped = Vec::new();
+        let mut ambiguous = 0;
+        for (v, m, amb) in per_face.into_iter().flatten() {
+            if m.is_none() && !self.dense.pinched[v as usize] {
+                unmapped.push(v);
+            }
+            ambiguous += amb as usize;
+            maps[v as usize] = m;
+        }
+        unmapped.sort_unstable();
+        let ctx = GlobalContext { st: self, maps: &maps };
+        let dense = &self.dense;
+        let failures: Vec<(u32, Reject)> = (0..self.dense.faces.len() as u32)
+            .into_par_iter()
+            .filter_map(|f| {
+                let mut scratch = Scratch::default();
+                check_faces_and_edges(&ctx, &dense, &[f], |_| true, &mut scratch).err().map(|r| (f, r))
+            })
+            .collect();
+        let flipped = failures.iter().filter(|(_, r)| *r == Reject::Flip).map(|(f, _)| *f).collect();
+        let torn = failures.iter().filter(|(_, r)| *r == Reject::Tear).map(|(f, _)| *f).collect();
+        let max_abs_d = maps.iter().flatten().map(|m| m.d.abs()).fold(0.0, f64::max);
+        Recheck {
+            unmapped,
+            flipped,
+            torn,
+            pinched: self.dense.pinched.iter().filter(|&&p| p).count(),
+            ambiguous,
+            max_abs_d,
+        }
+    }
+
+}
+
+/// Result of [`State::recheck`].
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Recheck {
+    pub unmapped: Vec<u32>,
+    pub flipped: Vec<u32>,
+    pub torn: Vec<u32>,
+    pub pinched: usize,
+    /// (strict mode) vertices with more than one solution satisfying (4) on their 2-ring.
+    pub ambiguous: usize,
+    pub max_abs_d: f64,
+}
+
+impl Recheck {
+    pub fn ok(&self) -> bool {
+        self.unmapped.is_empty() && self.flipped.is_empty() && self.torn.is_empty()
+    }
+}
+
+/// Map context of the re-check: recomputed maps, current base mesh.
+struct GlobalContext<'a> {
+    st: &'a State,
+    maps: &'a [Option<Map>],
+}
+
+impl MapContext for GlobalContext<'_> {
+    fn map_of(&self, v: u32) -> Option<Map> {
+        if self.st.dense.pinched[v as usize] {
+            return None;
+        }
+        // An unmapped vertex is already counted; its triangles cannot be drawn.
+        self.maps[v as usize]
+    }
+    fn face_info(&self, face: u32) -> FaceInfo {
+        self.st.face_info_current(face)
+    }
+    fn face_containing(&self, verts: &[u32]) -> Option<u32> {
+        self.st.face_containing(verts)
+    }
+    fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map> {
+        let mut tris = Tris::default();
+        self.st.two_ring_tris(fa, &mut tris);
+        let mut more = Tris::default();
+        self.st.two_ring_tris(fb, &mut more);
+        for t in 0..more.len() {
+            if tris.index_of(more.ids[t]).is_none() {
+                tris.push(more.ids[t], more.verts[t], more.pos[t], more.dir[t]);
+            }
+        }
+        tris.finish();
+        match find_primary(x, normals, &tris, self.st.mode, self.st.dmax, true, false, scratch) {
+            Found::Hit(t, h) => Some(Map { face: tris.ids[t], bary: h.bary, d: h.d }),
+            _ => None,
+        }
     }
 }

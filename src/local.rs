@@ -1,0 +1,328 @@
+//! The local test of one candidate collapse (SPEC §2 step 5): the collapsed neighbourhood,
+//! the primary solutions of the dense vertices it can affect, and the flip and tear checks.
+//!
+//! Which dense vertices are tested:
+//! - those associated with the *region* (faces around u, w and their ring, whose direction
+//!   field changes), solved over region ∪ border, and against faces outside when those could
+//!   hold a smaller |d| ([`State::far_primaries`]);
+//! - any other vertex whose distance to a changed triangle is below its |d|: only those can
+//!   gain a solution there ([`State::moved_primaries`]).
+
+use crate::decimate::{Candidate, State};
+use crate::eval::{check_faces_and_edges, find_primary, Accepted, FaceInfo, Found, Map, MapContext, NormalMode, Outcome, Reject, Scratch, Tris};
+use crate::geometry::{face_cross, vertex_direction};
+use crate::topology::INVALID;
+use glam::DVec3;
+
+impl State {
+    /// Builds the neighbourhood of a candidate after collapse with `placement`: region (less
+    /// the deleted faces) and border, with the new directions. Fails on a fold-over.
+    fn build_neighbourhood(&self, c: &Candidate, p: DVec3, tris: &mut Tris) -> Result<(Vec<(u32, DVec3)>, usize), Reject> {
+        tris.clear();
+        let relabel = |v: u32| if v == c.w { c.u } else { v };
+        let pos_of = |v: u32| if v == c.u { p } else { self.pos[v as usize] };
+        let mut crosses: Vec<Vec<DVec3>> = vec![Vec::new(); c.changed.len()];
+        let changed_idx = |v: u32| c.changed.iter().position(|&x| x == v);
+        let mut post: Vec<(u32, [u32; 3], [DVec3; 3])> = Vec::with_capacity(c.region.len() + c.border.len());
+        for &f in c.region.iter().chain(c.border.iter()) {
+            if f == c.removed[0] || f == c.removed[1] {
+                continue;
+            }
+            let old = self.topo.face(f);
+            let verts = old.map(relabel);
+            let pos = verts.map(pos_of);
+            let cr = face_cross(pos[0], pos[1], pos[2]);
+            if verts.contains(&c.u) {
+                // Fold-over: the moved fan must keep its orientation and stay non-degenerate.
+                let oc = face_cross(self.pos[old[0] as usize], self.pos[old[1] as usize], self.pos[old[2] as usize]);
+                if cr.dot(oc) <= 0.0 || cr.length_squared() <= 1e-30 * oc.length_squared().max(1e-300) {
+                    return Err(Reject::Foldover);
+                }
+            }
+            for &v in &verts {
+                if let Some(i) = changed_idx(v) {
+                    crosses[i].push(cr);
+                }
+            }
+            post.push((f, verts, pos));
+        }
+        let n_region = c.region.iter().filter(|&&f| f != c.removed[0] && f != c.removed[1]).count();
+        let mut new_dirs = Vec::with_capacity(c.changed.len());
+        for (i, &v) in c.changed.iter().enumerate() {
+            let d = vertex_direction(&crosses[i]);
+            if self.mode == NormalMode::Interpolated && !crosses[i].iter().all(|cr| cr.dot(d) > 0.0) {
+                return Err(Reject::Foldover);
+            }
+            new_dirs.push((v, d));
+        }
+        let dir_of = |v: u32| match new_dirs.iter().find(|(x, _)| *x == v) {
+            Some((_, d)) => *d,
+            None => self.dir[v as usize],
+        };
+        for (f, verts, pos) in post {
+            tris.push(f, verts, pos, verts.map(dir_of));
+        }
+        tris.finish();
+        Ok((new_dirs, n_region))
+    }
+
+    /// Tests one candidate, placement by placement (SPEC §2 step 5). The first passing
+    /// placement wins; otherwise the first placement's reason is reported.
+    pub fn evaluate_candidate(&self, c: &Candidate) -> Outcome {
+        let mut first_reason = None;
+        let mut tris = Tris::default();
+        let mut scratch = Scratch::default();
+        for (pi, &p) in c.placements.iter().enumerate() {
+            match self.evaluate_placement(c, p, &mut tris, &mut scratch) {
+                Ok(acc) => {
+                    return Ok(Accepted { placement: pi, ..acc });
+                }
+                Err(r) => {
+                    first_reason.get_or_insert(r);
+                }
+            }
+        }
+        Err(first_reason.unwrap_or(Reject::Link))
+    }
+
+    fn evaluate_placement(&self, c: &Candidate, p: DVec3, tris: &mut Tris, scratch: &mut Scratch) -> Result<Accepted, Reject> {
+        let (new_dirs, n_region) = self.build_neighbourhood(c, p, tris)?;
+        let dense = &self.dense;
+        let mut maps = vec![Map { face: INVALID, bary: [0.0; 3], d: 0.0 }; c.dense.len()];
+        let mut normals = Vec::new();
+        for &i in &c.order {
+            let v = c.dense[i as usize];
+            let x = self.dense.pos[v as usize];
+            dense.vertex_normals(v, &mut normals);
+            let pinched = self.dense.pinched[v as usize];
+            match find_primary(x, &normals, tris, self.mode, self.dmax, !pinched, self.strict && !pinched, scratch) {
+                Found::Hit(t, h) => maps[i as usize] = Map { face: tris.ids[t], bary: h.bary, d: h.d },
+                Found::Ambiguous => return Err(Reject::Ambiguous),
+                Found::None if pinched => maps[i as usize] = self.nearest_fallback(x, tris),
+                Found::None => return Err(Reject::Unmapped),
+            }
+        }
+        self.far_primaries(c, tris, &mut maps, scratch);
+        let extras = self.moved_primaries(c, tris, n_region, scratch);
+        let faces_owned;
+        let faces: &[u32] = if extras.is_empty() {
+            &c.dense_faces
+        } else {
+            let mut f = c.dense_faces.clone();
+            for &(v, _) in &extras {
+                f.extend_from_slice(dense.faces_of(v));
+            }
+            f.sort_unstable();
+            f.dedup();
+            faces_owned = f;
+            &faces_owned
+        };
+        let ctx = CandidateContext { st: self, c, tris, maps: &maps, extras: &extras };
+        let tested = |v: u32| c.dense.binary_search(&v).is_ok() || extras.binary_search_by_key(&v, |e| e.0).is_ok();
+        check_faces_and_edges(&ctx, &dense, faces, tested, scratch)?;
+        Ok(Accepted { placement: 0, position: p, new_dirs, maps, extras })
+    }
+
+    /// The region's vertices were solved over region ∪ border; a face outside (the far side of
+    /// a thin part) may hold a solution with a smaller |d|. Any such face lies within |d| of the
+    /// vertex, so one grid query with the largest |d| finds every candidate face.
+    fn far_primaries(&self, c: &Candidate, tris: &Tris, maps: &mut [Map], scratch: &mut Scratch) {
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        let mut reach: f64 = 0.0;
+        for (i, &v) in c.dense.iter().enumerate() {
+            if self.dense.pinched[v as usize] || maps[i].d == 0.0 {
+                continue;
+            }
+            let x = self.dense.pos[v as usize];
+            lo = lo.min(x);
+            hi = hi.max(x);
+            reach = reach.max(maps[i].d.abs());
+        }
+        if reach == 0.0 {
+            return;
+        }
+        let mut faces = Vec::new();
+        self.face_grid.query(lo - DVec3::splat(reach), hi + DVec3::splat(reach), &mut faces);
+        let mut far = Tris::default();
+        for f in faces {
+            if tris.index_of(f).is_some() || c.region.binary_search(&f).is_ok() || !self.topo.face_alive(f) {
+                continue;
+            }
+            let info = self.face_info_current(f);
+            let (ctr, r) = crate::geometry::triangle_sphere(&info.pos);
+            // Skip faces beyond every vertex's reach.
+            let q = ctr.clamp(lo, hi);
+            if q.distance(ctr) - r > reach {
+                continue;
+            }
+            far.push(f, info.verts, info.pos, info.dir);
+        }
+        if far.is_empty() {
+            return;
+        }
+        far.finish();
+        let dense = &self.dense;
+        let mut normals = Vec::new();
+        let tie = crate::eval::SAME_SOLUTION_REL * self.dmax;
+        for (i, &v) in c.dense.iter().enumerate() {
+            let cur = maps[i];
+            if self.dense.pinched[v as usize] || cur.d == 0.0 {
+                continue;
+            }
+            let x = self.dense.pos[v as usize];
+            dense.vertex_normals(v, &mut normals);
+            if let Found::Hit(t, h) = find_primary(x, &normals, &far, self.mode, cur.d.abs() + tie, true, false, scratch) {
+                let (da, db) = (h.d.abs(), cur.d.abs());
+                if da < db - tie || (da <= db + tie && far.ids[t] < cur.face) {
+                    maps[i] = Map { face: far.ids[t], bary: h.bary, d: h.d };
+                }
+            }
+        }
+    }
+
+    /// Dense vertices associated outside the region whose primary solution moves onto it: a
+    /// vertex can only gain a solution on a changed triangle T if its distance to T is below
+    /// its current |d| (|x − X| ≤ |d|), so the grid finds every candidate. Returns their new
+    /// maps, ascending by vertex.
+    fn moved_primaries(&self, c: &Candidate, tris: &Tris, n_region: usize, scratch: &mut Scratch) -> Vec<(u32, Map)> {
+        let reach = self.max_abs_d;
+        if reach <= 0.0 || n_region == 0 {
+            return Vec::new();
+        }
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        for t in 0..n_region {
+            for q in tris.pos[t] {
+                lo = lo.min(q);
+                hi = hi.max(q);
+            }
+        }
+        let (blo, bhi) = (lo - DVec3::splat(reach), hi + DVec3::splat(reach));
+        let mut cand = Vec::new();
+        self.grid.query(blo, bhi, |v| {
+            let dv = self.assoc[v as usize].d.abs();
+            if dv == 0.0 || self.dense.pinched[v as usize] {
+                return;
+            }
+            let x = self.dense.pos[v as usize];
+            if x.clamp(lo, hi).distance(x) >= dv || c.dense.binary_search(&v).is_ok() {
+                return;
+            }
+            cand.push(v);
+        });
+        if cand.is_empty() {
+            return Vec::new();
+        }
+        cand.sort_unstable();
+        let mut region = Tris::default();
+        for t in 0..n_region {
+            region.push(tris.ids[t], tris.verts[t], tris.pos[t], tris.dir[t]);
+        }
+        region.finish();
+        let dense = &self.dense;
+        let mut normals = Vec::new();
+        let mut out = Vec::new();
+        for v in cand {
+            let cur = self.assoc[v as usize];
+            let x = self.dense.pos[v as usize];
+            dense.vertex_normals(v, &mut normals);
+            if let Found::Hit(t, h) = find_primary(x, &normals, &region, self.mode, cur.d.abs(), true, false, scratch) {
+                if h.d.abs() < cur.d.abs() {
+                    out.push((v, Map { face: region.ids[t], bary: h.bary, d: h.d }));
+                }
+            }
+        }
+        out
+    }
+
+    /// Association of a pinched vertex without any solution: the nearest triangle's centre.
+    fn nearest_fallback(&self, x: DVec3, tris: &Tris) -> Map {
+        let mut best = (f64::INFINITY, 0usize);
+        for t in 0..tris.len() {
+            let d = x.distance(tris.sphere[t].0);
+            if d < best.0 {
+                best = (d, t);
+            }
+        }
+        Map { face: tris.ids[best.1], bary: [1.0 / 3.0; 3], d: 0.0 }
+    }
+
+}
+
+/// Map context during a candidate's evaluation: tested vertices use the new maps and the
+/// collapsed neighbourhood; everything else the committed state.
+struct CandidateContext<'a> {
+    st: &'a State,
+    c: &'a Candidate,
+    tris: &'a Tris,
+    maps: &'a [Map],
+    extras: &'a [(u32, Map)],
+}
+
+impl MapContext for CandidateContext<'_> {
+    fn map_of(&self, v: u32) -> Option<Map> {
+        if self.st.dense.pinched[v as usize] {
+            return None;
+        }
+        if let Ok(i) = self.c.dense.binary_search(&v) {
+            return Some(self.maps[i]);
+        }
+        match self.extras.binary_search_by_key(&v, |e| e.0) {
+            Ok(i) => Some(self.extras[i].1),
+            Err(_) => Some(self.st.assoc[v as usize]),
+        }
+    }
+    fn face_info(&self, face: u32) -> FaceInfo {
+        match self.tris.index_of(face) {
+            Some(t) => FaceInfo { verts: self.tris.verts[t], pos: self.tris.pos[t], dir: self.tris.dir[t] },
+            None => self.st.face_info_current(face),
+        }
+    }
+    fn face_containing(&self, verts: &[u32]) -> Option<u32> {
+        let holds = |t: &[u32; 3]| verts.iter().all(|v| t.contains(v));
+        if let Some(t) = self.tris.verts.iter().position(holds) {
+            return Some(self.tris.ids[t]);
+        }
+        // Unchanged faces: around a vertex whose fan did not change, outside the region (a
+        // changed vertex's faces are all in the neighbourhood).
+        let v0 = verts[0];
+        if v0 == self.c.w || self.c.changed.contains(&v0) || verts.contains(&self.c.w) {
+            return None;
+        }
+        let (mut s, mut fs) = (Vec::new(), Vec::new());
+        self.st.topo.faces_around(v0, &mut s, &mut fs);
+        fs.into_iter().find(|&f| holds(&self.st.topo.face(f)) && self.c.region.binary_search(&f).is_err())
+    }
+    fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map> {
+        // The neighbourhood, plus the (unchanged) faces around an end that maps outside it.
+        if self.tris.index_of(fa).is_some() && self.tris.index_of(fb).is_some() {
+            return match find_primary(x, normals, self.tris, self.st.mode, self.st.dmax, true, false, scratch) {
+                Found::Hit(t, h) => Some(Map { face: self.tris.ids[t], bary: h.bary, d: h.d }),
+                _ => None,
+            };
+        }
+        let mut tris = self.tris.clone();
+        let (mut s, mut tmp) = (Vec::new(), Vec::new());
+        for f in [fa, fb] {
+            if self.tris.index_of(f).is_some() {
+                continue;
+            }
+            for v in self.st.topo.face(f) {
+                self.st.topo.faces_around(v, &mut s, &mut tmp);
+                for &g in &tmp {
+                    if tris.index_of(g).is_none() {
+                        let info = self.st.face_info_current(g);
+                        tris.push(g, info.verts, info.pos, info.dir);
+                    }
+                }
+            }
+        }
+        tris.finish();
+        match find_primary(x, normals, &tris, self.st.mode, self.st.dmax, true, false, scratch) {
+            Found::Hit(t, h) => Some(Map { face: tris.ids[t], bary: h.bary, d: h.d }),
+            _ => None,
+        }
+    }
+}
+
