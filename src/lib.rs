@@ -4,9 +4,11 @@
 //! Modules, one concern each:
 //! - [`mesh`]: mesh types, OBJ/PLY input, input checks, OBJ output;
 //! - [`topology`]: half-edges on flat `u32` arrays, link condition, edge collapse;
+//! - [`fold`]: the fold image (coverage of the base by the scan, per texel);
 //! - [`geometry`]: pure kernels (normals, shell inversion, condition (4));
 //! - [`eval`]: the [`eval::Evaluator`] trait, the CPU evaluator, primary search, flip and tear tests;
 //! - [`local`]: the local test of one candidate collapse;
+//! - [`bvh`]: a triangle BVH (distance and line queries);
 //! - [`decimate`]: queue, association, batch scheduler, commit;
 //! - [`grid`]: uniform grids over dense vertices and base faces (the searches for smaller |d|);
 //! - [`mapfile`]: the `BASE.map` binary format;
@@ -14,8 +16,10 @@
 //! - [`sample`]: the generator of the scan-like sample meshes in `data/`;
 //! - [`validate`]: the global check of a base mesh against its scan, and the local re-check.
 
+pub mod bvh;
 pub mod decimate;
 pub mod eval;
+pub mod fold;
 pub mod geometry;
 pub mod grid;
 pub mod local;

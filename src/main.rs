@@ -70,6 +70,35 @@ enum Cmd {
         #[arg(long, short)]
         quiet: bool,
     },
+    /// Judge BASE against HIGH from scratch: can BASE carry HIGH as a displacement map?
+    /// Exit 0 when valid, 1 when not, 2 on bad input.
+    Validate {
+        high: PathBuf,
+        base: PathBuf,
+        /// JSON report.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Fold image (PNG): green = covered once, white = fold, red = hole.
+        #[arg(long)]
+        fold_image: Option<PathBuf>,
+        /// Atlas size in texels.
+        #[arg(long, default_value_t = 1024)]
+        resolution: u32,
+        /// Largest |d| (default: 0.1 x the bounding-box diagonal of HIGH).
+        #[arg(long)]
+        dmax: Option<f64>,
+        /// The paper's uniqueness rule: an ambiguous vertex makes BASE invalid.
+        #[arg(long)]
+        strict: bool,
+        #[arg(long, value_enum, default_value = "interpolated")]
+        normals: Normals,
+        /// Evaluator backend (this build validates on the CPU).
+        #[arg(long, value_enum, default_value = "cpu")]
+        backend: Backend,
+        /// Worker threads (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+    },
     /// Generate a scan-like sample mesh (bumps, a thin fin, an overhang, an open boundary).
     Sample {
         #[arg(short, long)]
@@ -93,6 +122,18 @@ fn main() {
     }
 }
 
+/// This build evaluates on the CPU: `auto` says so, `gpu` is refused.
+fn check_backend(backend: Backend) -> Result<()> {
+    match backend {
+        Backend::Cpu => Ok(()),
+        Backend::Auto => {
+            eprintln!("dispdec: --backend auto: no GPU evaluator in this build; using the CPU");
+            Ok(())
+        }
+        Backend::Gpu => Err(dispdec::Error::Usage("--backend gpu: no GPU evaluator in this build".into()).into()),
+    }
+}
+
 fn run(cli: Cli) -> Result<i32> {
     match cli.cmd {
         Cmd::Decimate {
@@ -110,13 +151,7 @@ fn run(cli: Cli) -> Result<i32> {
             batch,
             quiet,
         } => {
-            match backend {
-                Backend::Cpu => {}
-                Backend::Auto => eprintln!("dispdec: --backend auto: no GPU evaluator in this build; using the CPU"),
-                Backend::Gpu => {
-                    return Err(dispdec::Error::Usage("--backend gpu: no GPU evaluator in this build".into()).into())
-                }
-            }
+            check_backend(backend)?;
             let job = DecimateJob {
                 input,
                 output,
@@ -162,6 +197,58 @@ fn run(cli: Cli) -> Result<i32> {
                 return Ok(1);
             }
             Ok(0)
+        }
+        Cmd::Validate { high, base, json, fold_image, resolution, dmax, strict, normals, backend, threads } => {
+            check_backend(backend)?;
+            let job = dispdec::run::ValidateJob {
+                high,
+                base,
+                json,
+                fold_image,
+                resolution,
+                dmax,
+                strict,
+                normals: match normals {
+                    Normals::Interpolated => NormalMode::Interpolated,
+                    Normals::Constant => NormalMode::Constant,
+                },
+                threads,
+            };
+            let r = dispdec::run::validate(&job)?;
+            let v = &r.verdict;
+            if let Some(why) = &r.non_manifold {
+                eprintln!("{}: not a manifold ({why}); judged all the same", r.base);
+            }
+            if r.directions == "computed" {
+                eprintln!("{}: no vn per vertex; using computed directions (area-weighted, README rule)", r.base);
+            }
+            eprintln!(
+                "{} against {}: {} ({} dense vertices: {} mapped, {} unmapped, {} pinched, {} ambiguous, {} far hits; {} dense faces: {} flipped, {} torn); max |d| {:.4}, RMS d {:.4}, dmax {:.4}; coverage per base face {:.3}..{:.3}, {} fold and {} hole texels; {:.2} s",
+                r.base,
+                r.high,
+                if v.valid { "VALID" } else { "INVALID" },
+                v.dense_vertices,
+                v.mapped,
+                v.unmapped,
+                v.pinched,
+                v.ambiguous,
+                v.far_hits,
+                v.dense_faces,
+                v.flipped,
+                v.torn,
+                v.max_abs_d,
+                v.rms_d,
+                v.dmax,
+                r.coverage.min,
+                r.coverage.max,
+                r.coverage.folded_texels,
+                r.coverage.hole_texels,
+                r.time_s
+            );
+            for f in r.first_failures.iter().take(10) {
+                eprintln!("  {} {} at ({:.5}, {:.5}, {:.5})", f.kind, f.index, f.position[0], f.position[1], f.position[2]);
+            }
+            Ok(if v.valid { 0 } else { 1 })
         }
         Cmd::Sample { output, faces, seed } => {
             if !(1_000..=4_000_000).contains(&faces) {

@@ -13,6 +13,9 @@ use std::path::Path;
 pub struct Mesh {
     pub positions: Vec<DVec3>,
     pub faces: Vec<[u32; 3]>,
+    /// One normal per position when the file gives them (OBJ `vn` referenced by the faces),
+    /// else empty.
+    pub normals: Vec<DVec3>,
 }
 
 /// A checked dense mesh: referenced vertices only, manifold, consistently wound.
@@ -20,6 +23,8 @@ pub struct Mesh {
 pub struct DenseMesh {
     pub positions: Vec<DVec3>,
     pub faces: Vec<[u32; 3]>,
+    /// Per-vertex normals from the file (OBJ `vn`), empty when it has none.
+    pub normals: Vec<DVec3>,
     /// For each vertex here, its index in the input file.
     pub input_index: Vec<u32>,
     /// Number of vertices in the input file (referenced or not).
@@ -91,8 +96,39 @@ pub fn load_dense(path: &Path) -> Result<DenseMesh, Error> {
     check_and_compact(path, mesh)
 }
 
+/// A base mesh to be judged: it may come from any decimator, so only what the check needs is
+/// required (valid indices, finite coordinates, no degenerate face); `topology` is the manifold
+/// check's verdict, an error message when the base is not a manifold.
+pub struct LoadedBase {
+    pub positions: Vec<DVec3>,
+    pub faces: Vec<[u32; 3]>,
+    pub normals: Vec<DVec3>,
+    pub manifold: Result<(), String>,
+}
+
+/// Loads a base mesh for validation (see [`LoadedBase`]).
+pub fn load_base(path: &Path) -> Result<LoadedBase, Error> {
+    let mesh = load_raw(path)?;
+    let (positions, faces, normals, input_index) = compact_checked(path, mesh)?;
+    let manifold = Topology::build(positions.len(), &faces).map(|_| ()).map_err(|e| {
+        let _ = &input_index;
+        e.to_string()
+    });
+    Ok(LoadedBase { positions, faces, normals, manifold })
+}
+
+type Compacted = (Vec<DVec3>, Vec<[u32; 3]>, Vec<DVec3>, Vec<u32>);
+
 /// Validates a raw mesh and drops unreferenced vertices.
 pub fn check_and_compact(path: &Path, mesh: Mesh) -> Result<DenseMesh, Error> {
+    let n = mesh.positions.len();
+    let (positions, faces, normals, input_index) = compact_checked(path, mesh)?;
+    let topology = topology_checked(path, &positions, &faces, &input_index)?;
+    Ok(DenseMesh { positions, faces, normals, input_index, input_vertex_count: n, topology })
+}
+
+/// Range, finiteness and degeneracy checks, and the removal of unreferenced vertices.
+fn compact_checked(path: &Path, mesh: Mesh) -> Result<Compacted, Error> {
     let n = mesh.positions.len();
     if mesh.faces.is_empty() {
         return Err(input_err(path, "the mesh has no faces"));
@@ -142,7 +178,12 @@ pub fn check_and_compact(path: &Path, mesh: Mesh) -> Result<DenseMesh, Error> {
             return Err(input_err(path, format!("face {fi} is degenerate: it has zero area")));
         }
     }
-    let topology = Topology::build(positions.len(), &faces).map_err(|e| {
+    let normals = if mesh.normals.len() == n { input_index.iter().map(|&v| mesh.normals[v as usize]).collect() } else { Vec::new() };
+    Ok((positions, faces, normals, input_index))
+}
+
+fn topology_checked(path: &Path, positions: &[DVec3], faces: &[[u32; 3]], input_index: &[u32]) -> Result<Topology, Error> {
+    Topology::build(positions.len(), faces).map_err(|e| {
         let msg = match &e {
             TopologyError::NonManifoldEdge { a, b, faces } => format!(
                 "non-manifold edge between vertices {} and {}: shared by {} faces (first: face {})",
@@ -161,8 +202,7 @@ pub fn check_and_compact(path: &Path, mesh: Mesh) -> Result<DenseMesh, Error> {
             ),
         };
         input_err(path, msg)
-    })?;
-    Ok(DenseMesh { positions, faces, input_index, input_vertex_count: n, topology })
+    })
 }
 
 /// Faces around each vertex, as CSR arrays (start, faces).
@@ -303,8 +343,10 @@ fn load_obj(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
     // vertices that groups share (bitwise-identical positions).
     let mut positions: Vec<DVec3> = Vec::new();
     let mut faces: Vec<[u32; 3]> = Vec::new();
-    let mut weld: std::collections::HashMap<[u32; 3], u32> = std::collections::HashMap::new();
+    let mut weld: std::collections::HashMap<[u64; 3], u32> = std::collections::HashMap::new();
     let multi = models.len() > 1;
+    let mut normals: Vec<DVec3> = Vec::new();
+    let mut has_normals = models.iter().all(|m| !m.mesh.normal_indices.is_empty());
     for m in &models {
         let mesh = &m.mesh;
         let mut local = Vec::with_capacity(mesh.positions.len() / 3);
@@ -312,11 +354,11 @@ fn load_obj(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
             let key = [p[0].to_bits(), p[1].to_bits(), p[2].to_bits()];
             let id = if multi {
                 *weld.entry(key).or_insert_with(|| {
-                    positions.push(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
+                    positions.push(DVec3::new(p[0], p[1], p[2]));
                     (positions.len() - 1) as u32
                 })
             } else {
-                positions.push(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
+                positions.push(DVec3::new(p[0], p[1], p[2]));
                 (positions.len() - 1) as u32
             };
             local.push(id);
@@ -325,8 +367,21 @@ fn load_obj(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
             let g = |i: u32| local.get(i as usize).copied().unwrap_or(u32::MAX);
             faces.push([g(t[0]), g(t[1]), g(t[2])]);
         }
+        if has_normals {
+            normals.resize(positions.len(), DVec3::ZERO);
+            for (k, &pi) in mesh.indices.iter().enumerate() {
+                let ni = mesh.normal_indices[k] as usize;
+                match (local.get(pi as usize), mesh.normals.get(3 * ni..3 * ni + 3)) {
+                    (Some(&v), Some(n)) => normals[v as usize] = DVec3::new(n[0], n[1], n[2]),
+                    _ => has_normals = false,
+                }
+            }
+        }
     }
-    Ok(Mesh { positions, faces })
+    if !has_normals {
+        normals.clear();
+    }
+    Ok(Mesh { positions, faces, normals })
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -448,7 +503,7 @@ fn load_ply(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
     if ply.payload.get("face").is_none() && ply.payload.get("tristrips").is_none() {
         return Err(input_err(path, "no 'face' or 'tristrips' element"));
     }
-    Ok(Mesh { positions, faces })
+    Ok(Mesh { positions, faces, normals: Vec::new() })
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -491,11 +546,12 @@ pub fn obj_with_normals(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3
     for line in header.lines() {
         let _ = writeln!(s, "# {line}");
     }
+    // Shortest round-trip decimal: reading the file back gives the very numbers checked.
     for p in positions {
-        let _ = writeln!(s, "v {:.9} {:.9} {:.9}", p.x, p.y, p.z);
+        let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);
     }
     for n in normals {
-        let _ = writeln!(s, "vn {:.9} {:.9} {:.9}", n.x, n.y, n.z);
+        let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
     }
     for f in faces {
         let _ = writeln!(s, "f {0}//{0} {1}//{1} {2}//{2}", f[0] + 1, f[1] + 1, f[2] + 1);

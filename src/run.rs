@@ -141,6 +141,8 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         &crate::validate::Base { positions: base.positions.clone(), directions: base.directions.clone(), faces: base.faces.clone() },
         job.options.normals,
         state.dmax,
+        false,
+        false,
     );
     let (_, loops_out) = topology_summary(base.positions.len(), &base.faces);
     let header = format!(
@@ -240,6 +242,161 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
             let _ = std::fs::remove_file(p);
         }
         return Err(e);
+    }
+    Ok(report)
+}
+
+// ---------------------------------------------------------------------------------------------
+// dispdec validate
+
+/// Everything `dispdec validate` needs.
+#[derive(Clone, Debug)]
+pub struct ValidateJob {
+    pub high: PathBuf,
+    pub base: PathBuf,
+    pub json: Option<PathBuf>,
+    pub fold_image: Option<PathBuf>,
+    /// Atlas size in texels (the fold image and the per-face coverage).
+    pub resolution: u32,
+    pub dmax: Option<f64>,
+    pub strict: bool,
+    pub normals: NormalMode,
+    pub threads: Option<usize>,
+}
+
+/// One failing element, by its index in the input file and its position.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Failure {
+    pub kind: &'static str,
+    pub index: u32,
+    pub position: [f64; 3],
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct CoverageSummary {
+    pub resolution: u32,
+    /// Per base face, the mean number of times the scan covers it (1 = exactly once).
+    pub per_face: Vec<f64>,
+    pub min: f64,
+    pub max: f64,
+    pub folded_texels: usize,
+    pub hole_texels: usize,
+    pub faces_with_folds: usize,
+    pub faces_with_holes: usize,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ValidateReport {
+    pub high: String,
+    pub base: String,
+    pub dense_faces: usize,
+    pub base_faces: usize,
+    /// "file" when BASE.obj gave one vn per vertex, else "computed" (the README's rule).
+    pub directions: &'static str,
+    /// `null` for a manifold base, else why it is not one (it is judged all the same).
+    pub non_manifold: Option<String>,
+    pub normals: NormalMode,
+    pub backend: String,
+    pub verdict: crate::validate::Verdict,
+    pub first_failures: Vec<Failure>,
+    pub coverage: CoverageSummary,
+    pub time_s: f64,
+}
+
+/// Judges BASE against HIGH from scratch; writes the JSON report and the fold image if asked.
+pub fn validate(job: &ValidateJob) -> Result<ValidateReport, Error> {
+    if let Some(d) = job.dmax {
+        if !(d > 0.0 && d.is_finite()) {
+            return Err(Error::Usage(format!("--dmax must be a positive number, got {d}")));
+        }
+    }
+    if !(16..=16384).contains(&job.resolution) {
+        return Err(Error::Usage(format!("--resolution must be between 16 and 16384, got {}", job.resolution)));
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(job.threads.unwrap_or(0))
+        .build()
+        .map_err(|e| Error::Usage(format!("cannot start threads: {e}")))?;
+    pool.install(|| validate_in_pool(job))
+}
+
+fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
+    let t0 = Instant::now();
+    let high = mesh::load_dense(&job.high)?;
+    let base = mesh::load_base(&job.base)?;
+    let (directions, from_file) = if base.normals.len() == base.positions.len() {
+        (base.normals.clone(), true)
+    } else {
+        let (start, vf) = mesh::vertex_faces(base.positions.len(), &base.faces);
+        let dirs = (0..base.positions.len())
+            .map(|v| {
+                let cross: Vec<glam::DVec3> = vf[start[v] as usize..start[v + 1] as usize]
+                    .iter()
+                    .map(|&f| {
+                        let t = base.faces[f as usize].map(|w| base.positions[w as usize]);
+                        crate::geometry::face_cross(t[0], t[1], t[2])
+                    })
+                    .collect();
+                crate::geometry::vertex_direction(&cross)
+            })
+            .collect();
+        (dirs, false)
+    };
+    let dmax = job.dmax.unwrap_or_else(|| {
+        crate::decimate::DEFAULT_DMAX_FRACTION * mesh::bbox_diagonal(high.positions.iter().copied())
+    });
+    let dense = mesh::DenseData::new(&high.positions, &high.faces);
+    let b = crate::validate::Base { positions: base.positions.clone(), directions, faces: base.faces.clone() };
+    let (verdict, maps) = crate::validate::validate_with_maps(&dense, &b, job.normals, dmax, job.strict, true);
+    let fold = crate::fold::fold_image(&dense, &b, &maps, job.normals, dmax, job.resolution);
+    let per_face = fold.coverage();
+    let coverage = CoverageSummary {
+        resolution: fold.atlas.size,
+        min: per_face.iter().copied().fold(f64::INFINITY, f64::min),
+        max: per_face.iter().copied().fold(0.0, f64::max),
+        folded_texels: fold.folded_texels(),
+        hole_texels: fold.hole_texels(),
+        faces_with_folds: fold.per_face.iter().filter(|p| p[2] > 0).count(),
+        faces_with_holes: fold.per_face.iter().filter(|p| p[3] > 0).count(),
+        per_face,
+    };
+    let mut first_failures = Vec::new();
+    let pos = |p: glam::DVec3| [p.x, p.y, p.z];
+    for &v in &verdict.first_unmapped {
+        first_failures.push(Failure { kind: "unmapped", index: high.input_index[v as usize], position: pos(high.positions[v as usize]) });
+    }
+    for (kind, list) in [("flipped", &verdict.first_flipped), ("torn", &verdict.first_torn)] {
+        for &f in list.iter() {
+            let t = high.faces[f as usize];
+            let c = (high.positions[t[0] as usize] + high.positions[t[1] as usize] + high.positions[t[2] as usize]) / 3.0;
+            first_failures.push(Failure { kind, index: f, position: pos(c) });
+        }
+    }
+    let report = ValidateReport {
+        high: job.high.display().to_string(),
+        base: job.base.display().to_string(),
+        dense_faces: high.faces.len(),
+        base_faces: base.faces.len(),
+        directions: if from_file { "file" } else { "computed" },
+        non_manifold: base.manifold.clone().err(),
+        normals: job.normals,
+        backend: format!("cpu ({} threads)", rayon::current_num_threads()),
+        verdict,
+        first_failures,
+        coverage,
+        time_s: t0.elapsed().as_secs_f64(),
+    };
+    if let Some(p) = &job.fold_image {
+        write_atomic(p, &fold.to_png())?;
+    }
+    if let Some(p) = &job.json {
+        let json = serde_json::to_string_pretty(&report).expect("report serialises");
+        if let Err(e) = write_atomic(p, json.as_bytes()) {
+            if let Some(img) = &job.fold_image {
+                let _ = std::fs::remove_file(img);
+            }
+            return Err(e);
+        }
     }
     Ok(report)
 }

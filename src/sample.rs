@@ -118,7 +118,7 @@ pub fn generate(spec: SampleSpec) -> crate::mesh::Mesh {
             }
         }
     }
-    crate::mesh::Mesh { positions, faces }
+    crate::mesh::Mesh { positions, faces, normals: Vec::new() }
 }
 
 /// OBJ text of a mesh (v/f only), the format of `data/sample.obj.gz`.

@@ -6,7 +6,7 @@
 //! BVH node's box, then to the triangle), so a vertex costs a handful of cubic solves.
 
 use crate::eval::{check_faces_and_edges, find_primary, FaceInfo, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
-use crate::geometry::triangle_distance;
+use crate::bvh::Bvh;
 use crate::decimate::State;
 use crate::mesh::{vertex_faces, DenseData};
 use glam::DVec3;
@@ -20,112 +20,6 @@ pub struct Base {
     pub faces: Vec<[u32; 3]>,
 }
 
-/// Leaf size of the BVH. Why: a leaf's triangles are tested exactly; 4 keeps boxes tight.
-const BVH_LEAF: usize = 4;
-
-/// A bounding-volume hierarchy over the base triangles (not their shells: the distance to a
-/// triangle is already a lower bound on |d|).
-struct Bvh {
-    nodes: Vec<Node>,
-    order: Vec<u32>,
-}
-
-#[derive(Clone, Copy)]
-struct Node {
-    lo: DVec3,
-    hi: DVec3,
-    /// Leaf: first index into `order`, count; inner: left child, right child (count = 0).
-    a: u32,
-    b: u32,
-    count: u32,
-}
-
-impl Bvh {
-    fn build(base: &Base) -> Bvh {
-        let tri_box = |f: u32| {
-            let t = base.faces[f as usize];
-            let p = t.map(|v| base.positions[v as usize]);
-            (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]))
-        };
-        let mut order: Vec<u32> = (0..base.faces.len() as u32).collect();
-        let centers: Vec<DVec3> = order
-            .iter()
-            .map(|&f| {
-                let (lo, hi) = tri_box(f);
-                0.5 * (lo + hi)
-            })
-            .collect();
-        let mut nodes = Vec::new();
-        fn rec(
-            nodes: &mut Vec<Node>,
-            order: &mut [u32],
-            first: usize,
-            centers: &[DVec3],
-            tri_box: &dyn Fn(u32) -> (DVec3, DVec3),
-        ) -> u32 {
-            let mut lo = DVec3::splat(f64::INFINITY);
-            let mut hi = DVec3::splat(f64::NEG_INFINITY);
-            for &f in order.iter() {
-                let (a, b) = tri_box(f);
-                lo = lo.min(a);
-                hi = hi.max(b);
-            }
-            let id = nodes.len() as u32;
-            nodes.push(Node { lo, hi, a: first as u32, b: 0, count: order.len() as u32 });
-            if order.len() <= BVH_LEAF {
-                return id;
-            }
-            let ext = hi - lo;
-            let axis = if ext.x >= ext.y && ext.x >= ext.z { 0 } else if ext.y >= ext.z { 1 } else { 2 };
-            let mid = order.len() / 2;
-            order.select_nth_unstable_by(mid, |&p, &q| {
-                centers[p as usize][axis].total_cmp(&centers[q as usize][axis]).then(p.cmp(&q))
-            });
-            let (l, r) = order.split_at_mut(mid);
-            let left = rec(nodes, l, first, centers, tri_box);
-            let right = rec(nodes, r, first + mid, centers, tri_box);
-            nodes[id as usize] = Node { lo, hi, a: left, b: right, count: 0 };
-            id
-        }
-        if !order.is_empty() {
-            let n = order.len();
-            let _ = n;
-            rec(&mut nodes, &mut order, 0, &centers, &tri_box);
-        }
-        Bvh { nodes, order }
-    }
-
-    /// Triangles whose distance to `x` is at most `limit`, in ascending order of that distance.
-    fn near(&self, base: &Base, x: DVec3, limit: f64, out: &mut Vec<(f64, u32)>) {
-        out.clear();
-        if self.nodes.is_empty() {
-            return;
-        }
-        let mut stack = vec![0u32];
-        while let Some(n) = stack.pop() {
-            let node = self.nodes[n as usize];
-            let q = x.clamp(node.lo, node.hi);
-            if q.distance(x) > limit {
-                continue;
-            }
-            if node.count > 0 {
-                for &f in &self.order[node.a as usize..(node.a + node.count) as usize] {
-                    let t = base.faces[f as usize];
-                    let p = t.map(|v| base.positions[v as usize]);
-                    let d = triangle_distance(x, &p);
-                    if d <= limit {
-                        out.push((d, f));
-                    }
-                }
-            } else {
-                stack.push(node.a);
-                stack.push(node.b);
-            }
-        }
-        out.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    }
-}
-
 /// Per dense vertex category.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum VertexStatus {
@@ -137,20 +31,35 @@ pub enum VertexStatus {
 /// The result of a global check.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Verdict {
+    /// unmapped = flipped = torn = 0 (and, with `strict`, ambiguous = 0).
     pub valid: bool,
+    pub strict: bool,
     pub dense_vertices: usize,
     pub mapped: usize,
     pub unmapped: usize,
     pub pinched: usize,
+    /// Mapped vertices with a second solution satisfying (4) on a triangle touching the
+    /// primary's (the shells overlap there); counted only when asked for.
+    pub ambiguous: usize,
+    /// Mapped vertices with a second solution satisfying (4) on a triangle that does not touch
+    /// the primary's (another sheet); counted only when asked for.
+    pub far_hits: usize,
+    pub dense_faces: usize,
     pub flipped: usize,
     pub torn: usize,
     pub max_abs_d: f64,
+    pub rms_d: f64,
+    pub dmax: f64,
+    /// Internal indices of the first unmapped vertices.
     pub first_unmapped: Vec<u32>,
+    /// Internal indices of the first flipped and torn dense faces.
+    pub first_flipped: Vec<u32>,
+    pub first_torn: Vec<u32>,
 }
 
 /// Candidate triangles for one point: the exact search set of a best-first query, as [`Tris`].
 fn candidate_tris(base: &Base, bvh: &Bvh, x: DVec3, limit: f64, near: &mut Vec<(f64, u32)>, tris: &mut Tris) {
-    bvh.near(base, x, limit, near);
+    bvh.near(&base.positions, &base.faces, x, limit, near);
     tris.clear();
     for &(_, f) in near.iter() {
         let t = base.faces[f as usize];
@@ -179,7 +88,7 @@ const FIRST_RADIUS: f64 = 1.0 / 64.0;
 /// searched; a hit with |d| ≤ L is the primary, since any solution with |d| ≤ L lies on a
 /// triangle within distance L.
 #[allow(clippy::too_many_arguments)]
-fn primary_global(
+pub(crate) fn primary_global(
     base: &Base,
     bvh: &Bvh,
     x: DVec3,
@@ -242,9 +151,63 @@ impl MapContext for ValidateContext<'_> {
     }
 }
 
-/// Judges `base` against the dense mesh over the whole base mesh.
-pub fn validate(dense: &DenseData, base: &Base, mode: NormalMode, dmax: f64) -> Verdict {
-    let bvh = Bvh::build(base);
+/// Second solutions of a mapped vertex: (ambiguous, far hit).
+fn second_solutions(
+    base: &Base,
+    bvh: &Bvh,
+    faces_touch: impl Fn(u32, u32) -> bool,
+    x: DVec3,
+    normals: &[DVec3],
+    primary: Map,
+    mode: NormalMode,
+    dmax: f64,
+    near: &mut Vec<(f64, u32)>,
+    tris: &mut Tris,
+) -> (bool, bool) {
+    candidate_tris(base, bvh, x, dmax, near, tris);
+    let p0 = {
+        let t = base.faces[primary.face as usize].map(|v| base.positions[v as usize]);
+        crate::geometry::interpolate_direction(&t, &primary.bary)
+    };
+    let (mut amb, mut far) = (false, false);
+    for t in 0..tris.len() {
+        for h in crate::eval::solve_tri(x, tris, t, mode, dmax).iter() {
+            if !crate::geometry::condition4(crate::eval::direction_at(tris, t, &h, mode), normals.iter().copied()) {
+                continue;
+            }
+            let p = crate::geometry::interpolate_direction(&tris.pos[t], &h.bary);
+            if p.distance(p0) <= crate::eval::SAME_SOLUTION_REL * dmax {
+                continue; // the primary itself, seen from a neighbouring face
+            }
+            if faces_touch(tris.ids[t], primary.face) {
+                amb = true;
+            } else {
+                far = true;
+            }
+        }
+    }
+    (amb, far)
+}
+
+/// Judges `base` against the dense mesh over the whole base mesh. With `second`, every mapped
+/// vertex's other solutions are classified too (ambiguous or far hit); `strict` makes an
+/// ambiguous vertex invalid (and implies `second`).
+pub fn validate(dense: &DenseData, base: &Base, mode: NormalMode, dmax: f64, strict: bool, second: bool) -> Verdict {
+    validate_with_maps(dense, base, mode, dmax, strict, second).0
+}
+
+/// [`validate`], also returning every dense vertex's primary solution (`None`: unmapped or
+/// pinched), for the fold image.
+pub fn validate_with_maps(
+    dense: &DenseData,
+    base: &Base,
+    mode: NormalMode,
+    dmax: f64,
+    strict: bool,
+    second: bool,
+) -> (Verdict, Vec<Option<Map>>) {
+    let second = second || strict;
+    let bvh = Bvh::build(&base.positions, &base.faces);
     let adj = dense;
     let maps: Vec<Option<Map>> = (0..dense.pos.len() as u32)
         .into_par_iter()
@@ -260,9 +223,9 @@ pub fn validate(dense: &DenseData, base: &Base, mode: NormalMode, dmax: f64) -> 
         .collect();
     let (vf_start, vf) = vertex_faces(base.positions.len(), &base.faces);
     let ctx = ValidateContext { base, vf_start, vf, bvh: &bvh, maps: &maps, pinched: &dense.pinched, mode, dmax };
-    let failures: Vec<Reject> = (0..dense.faces.len() as u32)
+    let failures: Vec<(u32, Reject)> = (0..dense.faces.len() as u32)
         .into_par_iter()
-        .map_init(Scratch::default, |scratch, f| check_faces_and_edges(&ctx, &adj, &[f], |_| true, scratch).err())
+        .map_init(Scratch::default, |scratch, f| check_faces_and_edges(&ctx, adj, &[f], |_| true, scratch).err().map(|r| (f, r)))
         .flatten()
         .collect();
     let status: Vec<VertexStatus> = (0..dense.pos.len())
@@ -278,19 +241,53 @@ pub fn validate(dense: &DenseData, base: &Base, mode: NormalMode, dmax: f64) -> 
         .collect();
     let unmapped: Vec<u32> =
         status.iter().enumerate().filter(|(_, s)| **s == VertexStatus::Unmapped).map(|(i, _)| i as u32).collect();
-    let flipped = failures.iter().filter(|r| **r == Reject::Flip).count();
-    let torn = failures.iter().filter(|r| **r == Reject::Tear).count();
-    Verdict {
-        valid: unmapped.is_empty() && flipped == 0 && torn == 0,
+    let flipped: Vec<u32> = failures.iter().filter(|r| r.1 == Reject::Flip).map(|r| r.0).collect();
+    let torn: Vec<u32> = failures.iter().filter(|r| r.1 == Reject::Tear).map(|r| r.0).collect();
+    let (ambiguous, far_hits) = if second {
+        let touch = |a: u32, b: u32| {
+            let (fa, fb) = (base.faces[a as usize], base.faces[b as usize]);
+            fa.iter().any(|v| fb.contains(v))
+        };
+        let flags: Vec<(bool, bool)> = (0..dense.pos.len() as u32)
+            .into_par_iter()
+            .map_init(
+                || (Vec::new(), Vec::new(), Tris::default()),
+                |(normals, near, tris), v| match maps[v as usize] {
+                    Some(m) if !dense.pinched[v as usize] => {
+                        dense.vertex_normals(v, normals);
+                        second_solutions(base, &bvh, touch, dense.pos[v as usize], normals, m, mode, dmax, near, tris)
+                    }
+                    _ => (false, false),
+                },
+            )
+            .collect();
+        (flags.iter().filter(|f| f.0).count(), flags.iter().filter(|f| f.1).count())
+    } else {
+        (0, 0)
+    };
+    let mapped_d: Vec<f64> = maps.iter().flatten().map(|m| m.d).collect();
+    let rms_d = if mapped_d.is_empty() { 0.0 } else { (mapped_d.iter().map(|d| d * d).sum::<f64>() / mapped_d.len() as f64).sqrt() };
+    let verdict = Verdict {
+        valid: unmapped.is_empty() && flipped.is_empty() && torn.is_empty() && !(strict && ambiguous > 0),
+        strict,
         dense_vertices: dense.pos.len(),
         mapped: status.iter().filter(|s| **s == VertexStatus::Mapped).count(),
         unmapped: unmapped.len(),
         pinched: status.iter().filter(|s| **s == VertexStatus::Pinched).count(),
-        flipped,
-        torn,
-        max_abs_d: maps.iter().flatten().map(|m| m.d.abs()).fold(0.0, f64::max),
+        ambiguous,
+        far_hits,
+        dense_faces: dense.faces.len(),
+        flipped: flipped.len(),
+        torn: torn.len(),
+        max_abs_d: mapped_d.iter().map(|d| d.abs()).fold(0.0, f64::max),
+        rms_d,
+        dmax,
         first_unmapped: unmapped.into_iter().take(10).collect(),
-    }
+        first_flipped: flipped.into_iter().take(10).collect(),
+        first_torn: torn.into_iter().take(10).collect(),
+    };
+    let maps = maps.into_iter().enumerate().map(|(v, m)| if dense.pinched[v] { None } else { m }).collect();
+    (verdict, maps)
 }
 
 // ---------------------------------------------------------------------------------------------

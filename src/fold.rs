@@ -1,0 +1,301 @@
+//! The fold image (paper Fig. 1c): every base triangle gets a cell of a texture atlas; every
+//! dense triangle is drawn into it through its vertices' primary solutions, and the coverage of
+//! each texel is counted. Covered once: good. More than once: a fold (white). Never: a hole.
+//!
+//! A dense triangle whose vertices map to several base faces is split in four, the new points
+//! solved like its vertices, until every piece lies on one face (at most MAX_SPLIT levels); a
+//! piece still straddling is drawn into each of its faces, projected onto that face's plane.
+//!
+//! Atlas: base triangles are taken in pairs, one square cell per pair (the first triangle in
+//! the lower-left half, the second in the upper-right half), cells row by row from the top-left;
+//! a one-texel gutter keeps neighbouring charts apart.
+
+use crate::bvh::Bvh;
+use crate::eval::{Map, NormalMode, Scratch, Tris};
+use crate::geometry::{barycentric, interpolate_direction};
+use crate::mesh::DenseData;
+use crate::validate::Base;
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicU32, Ordering};
+
+/// Texels between charts. Why: bilinear lookups and the eye need charts kept apart.
+const GUTTER: f64 = 1.0;
+
+/// Levels of splitting for a dense triangle that straddles base faces.
+/// Why: 4 levels make pieces 1/16 of a dense edge, below a texel at any practical resolution.
+const MAX_SPLIT: u32 = 4;
+
+/// Texel value outside every chart.
+pub const OUTSIDE: u8 = 255;
+
+/// The atlas layout of a base mesh at a given resolution.
+#[derive(Clone, Copy, Debug)]
+pub struct Atlas {
+    pub size: u32,
+    pub cells_per_row: u32,
+    pub cell_px: u32,
+    pub faces: u32,
+}
+
+impl Atlas {
+    pub fn new(faces: usize, size: u32) -> Atlas {
+        let cells = faces.div_ceil(2).max(1) as u32;
+        let cells_per_row = (cells as f64).sqrt().ceil() as u32;
+        let cell_px = (size / cells_per_row).max(4);
+        Atlas { size: cell_px * cells_per_row, cells_per_row, cell_px, faces: faces as u32 }
+    }
+
+    /// The base face and barycentric coordinates a texel centre stands for.
+    pub fn texel(&self, px: u32, py: u32) -> Option<(u32, [f64; 3])> {
+        let (cx, cy) = (px / self.cell_px, py / self.cell_px);
+        let inner = self.cell_px as f64 - 2.0 * GUTTER;
+        let lx = ((px % self.cell_px) as f64 + 0.5 - GUTTER) / inner;
+        let ly = ((py % self.cell_px) as f64 + 0.5 - GUTTER) / inner;
+        if !(0.0..=1.0).contains(&lx) || !(0.0..=1.0).contains(&ly) {
+            return None;
+        }
+        let cell = cy * self.cells_per_row + cx;
+        let (face, u, v) = if lx + ly <= 1.0 { (2 * cell, lx, ly) } else { (2 * cell + 1, 1.0 - lx, 1.0 - ly) };
+        if face >= self.faces {
+            return None;
+        }
+        Some((face, [1.0 - u - v, u, v]))
+    }
+
+    /// Texel-space position (continuous, texel centres at +0.5) of barycentric (u, v) on `face`.
+    fn position(&self, face: u32, u: f64, v: f64) -> (f64, f64) {
+        let cell = face / 2;
+        let (cx, cy) = ((cell % self.cells_per_row) as f64, (cell / self.cells_per_row) as f64);
+        let inner = self.cell_px as f64 - 2.0 * GUTTER;
+        let (u, v) = if face % 2 == 0 { (u, v) } else { (1.0 - u, 1.0 - v) };
+        (cx * self.cell_px as f64 + GUTTER + u * inner, cy * self.cell_px as f64 + GUTTER + v * inner)
+    }
+}
+
+/// Crossing counts per texel and per base face.
+pub struct FoldImage {
+    pub atlas: Atlas,
+    /// Row-major, `OUTSIDE` where no chart is.
+    pub counts: Vec<u8>,
+    /// Per base face: texels, texels covered once, folded texels (> 1), holes (0).
+    pub per_face: Vec<[u32; 4]>,
+}
+
+impl FoldImage {
+    /// Mean coverage of each base face (1 = exactly once everywhere).
+    pub fn coverage(&self) -> Vec<f64> {
+        let mut sum = vec![0.0f64; self.per_face.len()];
+        for py in 0..self.atlas.size {
+            for px in 0..self.atlas.size {
+                let c = self.counts[(py * self.atlas.size + px) as usize];
+                if c != OUTSIDE {
+                    if let Some((f, _)) = self.atlas.texel(px, py) {
+                        sum[f as usize] += c as f64;
+                    }
+                }
+            }
+        }
+        sum.iter().zip(&self.per_face).map(|(s, p)| if p[0] > 0 { s / p[0] as f64 } else { 1.0 }).collect()
+    }
+
+    pub fn folded_texels(&self) -> usize {
+        self.per_face.iter().map(|p| p[2] as usize).sum()
+    }
+    pub fn hole_texels(&self) -> usize {
+        self.per_face.iter().map(|p| p[3] as usize).sum()
+    }
+
+    /// RGB PNG: once = green-grey, folds = white, holes = red, outside the charts = dark grey.
+    pub fn to_png(&self) -> Vec<u8> {
+        let n = self.atlas.size as usize;
+        let mut rgb = Vec::with_capacity(n * n * 3);
+        for &c in &self.counts {
+            rgb.extend_from_slice(&match c {
+                OUTSIDE => [32, 32, 32],
+                0 => [220, 40, 40],
+                1 => [96, 150, 96],
+                _ => [255, 255, 255],
+            });
+        }
+        let mut out = Vec::new();
+        {
+            let mut enc = png::Encoder::new(&mut out, n as u32, n as u32);
+            enc.set_color(png::ColorType::Rgb);
+            enc.set_depth(png::BitDepth::Eight);
+            let mut w = enc.write_header().expect("PNG header into memory");
+            w.write_image_data(&rgb).expect("PNG data into memory");
+        }
+        out
+    }
+}
+
+/// Draws every dense triangle with three maps into the atlas of `base` and counts coverage.
+/// `maps[v]` is the primary solution of dense vertex v (`None`: unmapped or pinched).
+pub fn fold_image(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMode, dmax: f64, size: u32) -> FoldImage {
+    let atlas = Atlas::new(base.faces.len(), size);
+    let n = atlas.size as usize;
+    let acc: Vec<AtomicU32> = (0..n * n).map(|_| AtomicU32::new(0)).collect();
+    let bvh = Bvh::build(&base.positions, &base.faces);
+    let painter = Painter { atlas: &atlas, base, bvh: &bvh, mode, dmax, acc: &acc };
+    (0..dense.faces.len()).into_par_iter().for_each_init(
+        || (Scratch::default(), Vec::new(), Tris::default()),
+        |(scratch, near, tris), df| {
+            let t = dense.faces[df];
+            let [Some(m0), Some(m1), Some(m2)] = t.map(|v| maps[v as usize]) else { return };
+            let p = t.map(|v| dense.pos[v as usize]);
+            painter.draw(p, [m0, m1, m2], dense.normal[df], MAX_SPLIT, scratch, near, tris);
+        },
+    );
+    let mut counts = vec![OUTSIDE; n * n];
+    let mut per_face = vec![[0u32; 4]; base.faces.len()];
+    for py in 0..atlas.size {
+        for px in 0..atlas.size {
+            let Some((f, _)) = atlas.texel(px, py) else { continue };
+            let i = py as usize * n + px as usize;
+            let c = acc[i].load(Ordering::Relaxed).min(254) as u8;
+            counts[i] = c;
+            let e = &mut per_face[f as usize];
+            e[0] += 1;
+            match c {
+                0 => e[3] += 1,
+                1 => e[1] += 1,
+                _ => e[2] += 1,
+            }
+        }
+    }
+    FoldImage { atlas, counts, per_face }
+}
+
+struct Painter<'a> {
+    atlas: &'a Atlas,
+    base: &'a Base,
+    bvh: &'a Bvh,
+    mode: NormalMode,
+    dmax: f64,
+    acc: &'a [AtomicU32],
+}
+
+impl Painter<'_> {
+    fn corners(&self, f: u32) -> [glam::DVec3; 3] {
+        self.base.faces[f as usize].map(|v| self.base.positions[v as usize])
+    }
+
+    /// Draws the dense (sub-)triangle `p` whose corners map to `m`.
+    #[allow(clippy::too_many_arguments)]
+    fn draw(
+        &self,
+        p: [glam::DVec3; 3],
+        m: [Map; 3],
+        normal: glam::DVec3,
+        depth: u32,
+        scratch: &mut Scratch,
+        near: &mut Vec<(f64, u32)>,
+        tris: &mut Tris,
+    ) {
+        if m[0].face == m[1].face && m[1].face == m[2].face {
+            let f = m[0].face;
+            let pts = m.map(|mi| self.atlas.position(f, mi.bary[1], mi.bary[2]));
+            rasterise(self.atlas, f, pts, self.acc);
+            return;
+        }
+        if depth > 0 {
+            let mid = [0.5 * (p[0] + p[1]), 0.5 * (p[1] + p[2]), 0.5 * (p[2] + p[0])];
+            let solve = |x, scratch: &mut Scratch, near: &mut Vec<(f64, u32)>, tris: &mut Tris| {
+                crate::validate::primary_global(self.base, self.bvh, x, &[normal], self.mode, self.dmax, true, scratch, near, tris)
+            };
+            if let (Some(a), Some(b), Some(c)) =
+                (solve(mid[0], scratch, near, tris), solve(mid[1], scratch, near, tris), solve(mid[2], scratch, near, tris))
+            {
+                for (q, mm) in [
+                    ([p[0], mid[0], mid[2]], [m[0], a, c]),
+                    ([mid[0], p[1], mid[1]], [a, m[1], b]),
+                    ([mid[2], mid[1], p[2]], [c, b, m[2]]),
+                    ([mid[0], mid[1], mid[2]], [a, b, c]),
+                ] {
+                    self.draw(q, mm, normal, depth - 1, scratch, near, tris);
+                }
+                return;
+            }
+        }
+        // Still straddling: draw into each face, projected onto its plane.
+        let x = m.map(|mi| interpolate_direction(&self.corners(mi.face), &mi.bary));
+        let mut drawn = [u32::MAX; 3];
+        for k in 0..3 {
+            let f = m[k].face;
+            if drawn.contains(&f) {
+                continue;
+            }
+            drawn[k] = f;
+            let c = self.corners(f);
+            let uv = |i: usize| -> Option<(f64, f64)> {
+                if m[i].face == f {
+                    return Some((m[i].bary[1], m[i].bary[2]));
+                }
+                barycentric(x[i], c[0], c[1], c[2]).map(|b| (b[1], b[2]))
+            };
+            let (Some(a), Some(b), Some(cc)) = (uv(0), uv(1), uv(2)) else { continue };
+            let pts = [self.atlas.position(f, a.0, a.1), self.atlas.position(f, b.0, b.1), self.atlas.position(f, cc.0, cc.1)];
+            rasterise(self.atlas, f, pts, self.acc);
+        }
+    }
+}
+
+/// Adds 1 to every texel of face `f`'s chart whose centre lies in the triangle `pts` (either
+/// orientation; a centre on a shared edge belongs to one side only: the top-left rule).
+fn rasterise(atlas: &Atlas, f: u32, mut pts: [(f64, f64); 3], acc: &[AtomicU32]) {
+    let area = (pts[1].0 - pts[0].0) * (pts[2].1 - pts[0].1) - (pts[1].1 - pts[0].1) * (pts[2].0 - pts[0].0);
+    if area == 0.0 || !area.is_finite() {
+        return;
+    }
+    if area < 0.0 {
+        pts.swap(1, 2);
+    }
+    let n = atlas.size as i64;
+    let cell = (f / 2) as i64;
+    let cpr = atlas.cells_per_row as i64;
+    let (cx0, cy0) = ((cell % cpr) * atlas.cell_px as i64, (cell / cpr) * atlas.cell_px as i64);
+    let (cx1, cy1) = (cx0 + atlas.cell_px as i64 - 1, cy0 + atlas.cell_px as i64 - 1);
+    let lo_x = (pts.iter().map(|p| p.0).fold(f64::INFINITY, f64::min).floor() as i64).max(cx0);
+    let hi_x = (pts.iter().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max).ceil() as i64).min(cx1);
+    let lo_y = (pts.iter().map(|p| p.1).fold(f64::INFINITY, f64::min).floor() as i64).max(cy0);
+    let hi_y = (pts.iter().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max).ceil() as i64).min(cy1);
+    let edge = |a: (f64, f64), b: (f64, f64), x: f64, y: f64| (b.0 - a.0) * (y - a.1) - (b.1 - a.1) * (x - a.0);
+    // Top-left rule for a counter-clockwise triangle in a y-down raster.
+    let owns = |a: (f64, f64), b: (f64, f64)| (a.1 == b.1 && b.0 < a.0) || b.1 > a.1;
+    for py in lo_y..=hi_y {
+        for px in lo_x..=hi_x {
+            let (x, y) = (px as f64 + 0.5, py as f64 + 0.5);
+            let inside = (0..3).all(|k| {
+                let (a, b) = (pts[k], pts[(k + 1) % 3]);
+                let w = edge(a, b, x, y);
+                w > 0.0 || (w == 0.0 && owns(a, b))
+            });
+            if !inside || px < 0 || py < 0 || px >= n || py >= n {
+                continue;
+            }
+            if atlas.texel(px as u32, py as u32).map(|t| t.0) == Some(f) {
+                acc[(py * n + px) as usize].fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn atlas_covers_every_face_with_both_halves() {
+        let a = Atlas::new(7, 256);
+        let mut seen = vec![0u32; 7];
+        for py in 0..a.size {
+            for px in 0..a.size {
+                if let Some((f, b)) = a.texel(px, py) {
+                    seen[f as usize] += 1;
+                    assert!(b.iter().all(|&x| x >= -1e-12) && (b.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+                }
+            }
+        }
+        assert!(seen.iter().all(|&s| s > 100), "{seen:?}");
+    }
+}

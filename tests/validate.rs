@@ -1,0 +1,232 @@
+//! `dispdec validate`: constructed cases with known answers, a quadric-error base that must
+//! fail, and the command's contract (exit codes, reports, fold image).
+
+mod common;
+use common::*;
+use glam::DVec3;
+use serde_json::Value;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// An icosahedron on the unit sphere (20 faces, outward winding).
+fn icosahedron() -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let t = (1.0 + 5f64.sqrt()) / 2.0;
+    let v: Vec<DVec3> = [
+        (-1.0, t, 0.0), (1.0, t, 0.0), (-1.0, -t, 0.0), (1.0, -t, 0.0),
+        (0.0, -1.0, t), (0.0, 1.0, t), (0.0, -1.0, -t), (0.0, 1.0, -t),
+        (t, 0.0, -1.0), (t, 0.0, 1.0), (-t, 0.0, -1.0), (-t, 0.0, 1.0),
+    ]
+    .iter()
+    .map(|&(x, y, z)| DVec3::new(x, y, z).normalize())
+    .collect();
+    let f = vec![
+        [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11],
+        [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6], [7, 1, 8],
+        [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9],
+        [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1],
+    ];
+    (v, f)
+}
+
+/// Loop-style 1-to-4 subdivision on the unit sphere, `levels` times.
+fn icosphere(levels: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let (mut v, mut f) = icosahedron();
+    for _ in 0..levels {
+        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut nf = Vec::with_capacity(f.len() * 4);
+        for t in &f {
+            let mut m = [0u32; 3];
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                let key = (a.min(b), a.max(b));
+                m[k] = *mid.entry(key).or_insert_with(|| {
+                    v.push((v[a as usize] + v[b as usize]).normalize());
+                    (v.len() - 1) as u32
+                });
+            }
+            nf.extend([[t[0], m[0], m[2]], [t[1], m[1], m[0]], [t[2], m[2], m[1]], [m[0], m[1], m[2]]]);
+        }
+        f = nf;
+    }
+    (v, f)
+}
+
+fn write_obj(path: &Path, v: &[DVec3], f: &[[u32; 3]]) {
+    let mut s = String::new();
+    for p in v {
+        s.push_str(&format!("v {} {} {}\n", p.x, p.y, p.z));
+    }
+    for t in f {
+        s.push_str(&format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1));
+    }
+    std::fs::write(path, s).unwrap();
+}
+
+/// A sphere with small bumps (a scan-like surface a coarse base can carry).
+fn bumpy(p: DVec3) -> DVec3 {
+    p * (1.0 + 0.03 * (5.0 * p.x).sin() * (4.0 * p.y).cos() + 0.01 * (13.0 * p.z).sin())
+}
+
+/// Half-angle of the mushroom cap around +z, in radians.
+const MUSHROOM: f64 = 0.45;
+
+/// The bumpy sphere with a mushroom around +z: the cap's rim folds back over its stem, so
+/// directions from any smooth base see the rim twice.
+fn mushroom(p: DVec3) -> DVec3 {
+    let q = bumpy(p);
+    let theta = p.z.clamp(-1.0, 1.0).acos();
+    if theta >= MUSHROOM {
+        return q;
+    }
+    let rho = theta / MUSHROOM;
+    // (polar-angle scale, radial lift) along the profile: cap, rim, underside back inwards, stem.
+    let keys = [(0.0, 0.0, 0.35), (0.35, 0.9, 0.33), (0.5, 1.25, 0.22), (0.62, 0.9, 0.12), (0.75, 0.45, 0.1), (1.0, 1.0, 0.0)];
+    let mut out = (rho, 0.0);
+    for w in keys.windows(2) {
+        let ((r0, a0, h0), (r1, a1, h1)) = (w[0], w[1]);
+        if rho <= r1 {
+            let t = (rho - r0) / (r1 - r0);
+            out = (a0 + t * (a1 - a0), h0 + t * (h1 - h0));
+            break;
+        }
+    }
+    let new_theta = MUSHROOM * out.0;
+    let phi = p.y.atan2(p.x);
+    let dir = DVec3::new(new_theta.sin() * phi.cos(), new_theta.sin() * phi.sin(), new_theta.cos());
+    dir * (q.length() + out.1)
+}
+
+fn validate(dir: &Path, high: &Path, base: &Path, extra: &[&str]) -> (i32, Value, String) {
+    let json = dir.join("v.json");
+    let png = dir.join("fold.png");
+    let mut args = vec![
+        "validate",
+        high.to_str().unwrap(),
+        base.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+        "--fold-image",
+        png.to_str().unwrap(),
+        "--resolution",
+        "256",
+    ];
+    args.extend_from_slice(extra);
+    let o = run(&args);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    eprintln!("{err}");
+    let code = o.status.code().unwrap();
+    if code == 2 {
+        return (code, Value::Null, err);
+    }
+    let png_bytes = std::fs::read(&png).expect("fold image written");
+    assert_eq!(&png_bytes[1..4], b"PNG");
+    (code, serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap(), err)
+}
+
+fn sphere_files(dir: &Path, shape: fn(DVec3) -> DVec3) -> (PathBuf, PathBuf) {
+    let (v, f) = icosphere(4);
+    let high = dir.join("high.obj");
+    write_obj(&high, &v.iter().map(|&p| shape(p)).collect::<Vec<_>>(), &f);
+    let (bv, bf) = icosahedron();
+    let base = dir.join("ico.obj");
+    write_obj(&base, &bv, &bf);
+    (high, base)
+}
+
+#[test]
+fn bumpy_sphere_over_icosahedron_is_valid() {
+    let dir = tempdir("val-bumpy");
+    let (high, base) = sphere_files(&dir, bumpy);
+    let (code, r, err) = validate(&dir, &high, &base, &[]);
+    assert_eq!(code, 0, "{err}");
+    let v = &r["verdict"];
+    assert_eq!(v["valid"], true);
+    assert_eq!(v["unmapped"], 0);
+    assert_eq!(v["flipped"], 0);
+    assert_eq!(v["torn"], 0);
+    assert_eq!(r["directions"], "computed", "no vn in the base: directions are computed");
+    assert!(err.contains("no vn"), "says so: {err}");
+    assert_eq!(r["base_faces"], 20);
+    // Every base face is covered exactly once but for specks where pieces of dense triangles
+    // straddling two base faces meet (under 1 % of the texels).
+    let cov = &r["coverage"];
+    assert!(cov["min"].as_f64().unwrap() > 0.95 && cov["max"].as_f64().unwrap() < 1.05, "{cov}");
+    let texels: u64 = 20 * (256 / 4) * (256 / 4) / 2;
+    let specks = cov["folded_texels"].as_u64().unwrap() + cov["hole_texels"].as_u64().unwrap();
+    assert!(specks * 100 < texels, "{specks} of ~{texels} texels");
+}
+
+#[test]
+fn mushroom_overhang_is_invalid_and_found() {
+    let dir = tempdir("val-mushroom");
+    let (high, base) = sphere_files(&dir, mushroom);
+    let (code, r, err) = validate(&dir, &high, &base, &[]);
+    assert_eq!(code, 1, "{err}");
+    let v = &r["verdict"];
+    assert_eq!(v["valid"], false);
+    let bad = v["unmapped"].as_u64().unwrap() + v["flipped"].as_u64().unwrap() + v["torn"].as_u64().unwrap();
+    assert!(bad > 0, "{v}");
+    // The failures are on the mushroom (around +z), not elsewhere on the sphere.
+    let fails = r["first_failures"].as_array().unwrap();
+    assert!(!fails.is_empty());
+    for f in fails {
+        let p = &f["position"];
+        let q = DVec3::new(p[0].as_f64().unwrap(), p[1].as_f64().unwrap(), p[2].as_f64().unwrap());
+        let theta = (q.z / q.length()).acos();
+        assert!(theta < MUSHROOM + 0.05, "failure outside the overhang: {f}");
+    }
+}
+
+#[test]
+fn base_equal_to_scan_is_valid_with_zero_displacement() {
+    let dir = tempdir("val-identity");
+    let (v, f) = icosphere(3);
+    let high = dir.join("s.obj");
+    write_obj(&high, &v.iter().map(|&p| bumpy(p)).collect::<Vec<_>>(), &f);
+    let (code, r, err) = validate(&dir, &high, &high, &["--strict"]);
+    assert_eq!(code, 0, "{err}");
+    let v = &r["verdict"];
+    assert_eq!(v["valid"], true);
+    assert_eq!(v["strict"], true);
+    assert!(v["max_abs_d"].as_f64().unwrap() < 1e-9, "{v}");
+}
+
+#[test]
+fn validate_bad_input_is_exit_2_without_outputs() {
+    let dir = tempdir("val-bad");
+    let (high, _) = sphere_files(&dir, bumpy);
+    let missing = dir.join("nope.obj");
+    let json = dir.join("v.json");
+    let o = run(&["validate", high.to_str().unwrap(), missing.to_str().unwrap(), "--json", json.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("nope.obj"));
+    assert!(!json.exists());
+}
+
+/// A quadric-error base (meshoptimizer, no guarantee) of the same face count as dispdec's is
+/// judged by the same validator; dispdec's passes, the quadric one is expected to fail.
+#[test]
+fn quadric_error_base_of_the_bunny_fails_where_dispdecs_passes() {
+    let Some(bunny) = real_scan("bunny.ply.gz") else { return };
+    let dir = tempdir("val-qem");
+    let ours = dir.join("ours.obj");
+    let o = run(&["decimate", bunny.to_str().unwrap(), "-o", ours.to_str().unwrap(), "-q"]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let (code, r, err) = validate(&dir, &bunny, &ours, &[]);
+    assert_eq!(code, 0, "{err}");
+    let faces = r["base_faces"].as_u64().unwrap() as usize;
+
+    let scan = dispdec::mesh::load_dense(&bunny).unwrap();
+    let verts: Vec<[f32; 3]> = scan.positions.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect();
+    let indices: Vec<u32> = scan.faces.iter().flatten().copied().collect();
+    let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&verts), 12, 0).unwrap();
+    let simplified = meshopt::simplify(&indices, &adapter, faces * 3, 1.0, meshopt::SimplifyOptions::empty(), None);
+    let qem_faces: Vec<[u32; 3]> = simplified.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+    assert!(qem_faces.len() <= faces + 2 && qem_faces.len() + 40 >= faces, "{} vs {faces}", qem_faces.len());
+    let qem = dir.join("qem.obj");
+    write_obj(&qem, &scan.positions, &qem_faces);
+    let (code, r, err) = validate(&dir, &bunny, &qem, &[]);
+    assert_eq!(code, 1, "the quadric base must be found invalid: {err}");
+    let v = &r["verdict"];
+    assert!(v["unmapped"].as_u64().unwrap() + v["flipped"].as_u64().unwrap() + v["torn"].as_u64().unwrap() > 0);
+}
