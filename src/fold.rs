@@ -7,8 +7,10 @@
 //! piece still straddling is drawn into each of its faces, projected onto that face's plane.
 //!
 //! Atlas: base triangles are taken in pairs, one square cell per pair (the first triangle in
-//! the lower-left half, the second in the upper-right half), cells row by row from the top-left;
-//! a one-texel gutter keeps neighbouring charts apart.
+//! the lower-left half, the second in the upper-right half), cells row by row from the top-left.
+//! A gutter of GUTTER texels surrounds each cell and a band of about DIAGONAL_GAP texels
+//! separates the two triangles of a cell, so that a bilinear lookup inside a chart never reads
+//! another chart's texels (the displacement map fills gutters from its own chart).
 
 use crate::bvh::Bvh;
 use crate::eval::{Map, NormalMode, Scratch, Tris};
@@ -18,8 +20,13 @@ use crate::validate::Base;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU32, Ordering};
 
-/// Texels between charts. Why: bilinear lookups and the eye need charts kept apart.
-const GUTTER: f64 = 1.0;
+/// Texels around each cell. Why: a bilinear lookup reads one texel beyond the chart; two keep
+/// it inside the chart's own gutter.
+const GUTTER: f64 = 2.0;
+
+/// Texels (along each axis) between the hypotenuses of a cell's two triangles.
+/// Why: the same bilinear margin as GUTTER, on the diagonal.
+const DIAGONAL_GAP: f64 = 3.0;
 
 /// Levels of splitting for a dense triangle that straddles base faces.
 /// Why: 4 levels make pieces 1/16 of a dense edge, below a texel at any practical resolution.
@@ -45,30 +52,49 @@ impl Atlas {
         Atlas { size: cell_px * cells_per_row, cells_per_row, cell_px, faces: faces as u32 }
     }
 
-    /// The base face and barycentric coordinates a texel centre stands for.
+    /// Chart scale: the triangle's legs span `k` of the cell's inner width.
+    fn k(&self) -> f64 {
+        let inner = self.cell_px as f64 - 2.0 * GUTTER;
+        (1.0 - DIAGONAL_GAP / inner).max(0.5)
+    }
+
+    /// The base face and barycentric coordinates a texel centre stands for, when it lies on the
+    /// face's chart.
     pub fn texel(&self, px: u32, py: u32) -> Option<(u32, [f64; 3])> {
+        match self.texel_any(px, py) {
+            Some((f, b, true)) => Some((f, b)),
+            _ => None,
+        }
+    }
+
+    /// The face whose side of its cell a texel lies on, with (possibly out-of-triangle)
+    /// barycentric coordinates and whether the texel is on the chart itself (not in a gutter).
+    pub fn texel_any(&self, px: u32, py: u32) -> Option<(u32, [f64; 3], bool)> {
+        if px >= self.size || py >= self.size {
+            return None;
+        }
         let (cx, cy) = (px / self.cell_px, py / self.cell_px);
         let inner = self.cell_px as f64 - 2.0 * GUTTER;
         let lx = ((px % self.cell_px) as f64 + 0.5 - GUTTER) / inner;
         let ly = ((py % self.cell_px) as f64 + 0.5 - GUTTER) / inner;
-        if !(0.0..=1.0).contains(&lx) || !(0.0..=1.0).contains(&ly) {
-            return None;
-        }
         let cell = cy * self.cells_per_row + cx;
-        let (face, u, v) = if lx + ly <= 1.0 { (2 * cell, lx, ly) } else { (2 * cell + 1, 1.0 - lx, 1.0 - ly) };
+        let k = self.k();
+        let (face, u, v) = if lx + ly <= 1.0 { (2 * cell, lx / k, ly / k) } else { (2 * cell + 1, (1.0 - lx) / k, (1.0 - ly) / k) };
         if face >= self.faces {
             return None;
         }
-        Some((face, [1.0 - u - v, u, v]))
+        let inside = u >= 0.0 && v >= 0.0 && u + v <= 1.0;
+        Some((face, [1.0 - u - v, u, v], inside))
     }
 
     /// Texel-space position (continuous, texel centres at +0.5) of barycentric (u, v) on `face`.
-    fn position(&self, face: u32, u: f64, v: f64) -> (f64, f64) {
+    pub fn position(&self, face: u32, u: f64, v: f64) -> (f64, f64) {
         let cell = face / 2;
         let (cx, cy) = ((cell % self.cells_per_row) as f64, (cell / self.cells_per_row) as f64);
         let inner = self.cell_px as f64 - 2.0 * GUTTER;
-        let (u, v) = if face % 2 == 0 { (u, v) } else { (1.0 - u, 1.0 - v) };
-        (cx * self.cell_px as f64 + GUTTER + u * inner, cy * self.cell_px as f64 + GUTTER + v * inner)
+        let k = self.k();
+        let (lx, ly) = if face % 2 == 0 { (u * k, v * k) } else { (1.0 - u * k, 1.0 - v * k) };
+        (cx * self.cell_px as f64 + GUTTER + lx * inner, cy * self.cell_px as f64 + GUTTER + ly * inner)
     }
 }
 

@@ -8,14 +8,17 @@
 //! - [`geometry`]: pure kernels (normals, shell inversion, condition (4));
 //! - [`eval`]: the [`eval::Evaluator`] trait, the CPU evaluator, primary search, flip and tear tests;
 //! - [`local`]: the local test of one candidate collapse;
+//! - [`bake`]: the displacement map over the atlas (PNG16 + sidecar, PFM);
 //! - [`bvh`]: a triangle BVH (distance and line queries);
 //! - [`decimate`]: queue, association, batch scheduler, commit;
 //! - [`grid`]: uniform grids over dense vertices and base faces (the searches for smaller |d|);
 //! - [`mapfile`]: the `BASE.map` binary format;
+//! - [`reconstruct`]: subdivision + displacement, and distances to the scan;
 //! - [`run`]: the library side of the `decimate` command (options in, files and report out);
 //! - [`sample`]: the generator of the scan-like sample meshes in `data/`;
 //! - [`validate`]: the global check of a base mesh against its scan, and the local re-check.
 
+pub mod bake;
 pub mod bvh;
 pub mod decimate;
 pub mod eval;
@@ -25,6 +28,7 @@ pub mod grid;
 pub mod local;
 pub mod mapfile;
 pub mod mesh;
+pub mod reconstruct;
 pub mod run;
 pub mod sample;
 pub mod topology;

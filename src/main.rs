@@ -99,6 +99,32 @@ enum Cmd {
         #[arg(long)]
         threads: Option<usize>,
     },
+    /// Bake the displacement map of HIGH over BASE's atlas: DISP.png (16-bit, scale and offset
+    /// in DISP.png.json) or DISP.pfm (32-bit float).
+    Bake {
+        high: PathBuf,
+        base: PathBuf,
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Atlas size in texels.
+        #[arg(long, default_value_t = 2048)]
+        resolution: u32,
+        /// Largest |d| searched (default: 0.1 x the bounding-box diagonal of HIGH).
+        #[arg(long)]
+        dmax: Option<f64>,
+    },
+    /// Rebuild the scan: subdivide BASE --levels times and displace by DISP.
+    Reconstruct {
+        base: PathBuf,
+        disp: PathBuf,
+        #[arg(long, default_value_t = 5)]
+        levels: u32,
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Measure every level against this scan (RMS and Hausdorff, both ways).
+        #[arg(long)]
+        compare: Option<PathBuf>,
+    },
     /// Generate a scan-like sample mesh (bumps, a thin fin, an overhang, an open boundary).
     Sample {
         #[arg(short, long)]
@@ -249,6 +275,25 @@ fn run(cli: Cli) -> Result<i32> {
                 eprintln!("  {} {} at ({:.5}, {:.5}, {:.5})", f.kind, f.index, f.position[0], f.position[1], f.position[2]);
             }
             Ok(if v.valid { 0 } else { 1 })
+        }
+        Cmd::Bake { high, base, output, resolution, dmax } => {
+            let (defined, total, secs) = dispdec::run::bake(&high, &base, &output, resolution, dmax)?;
+            eprintln!("wrote {}: {defined} of {total} texels carry d ({:.1} s)", output.display(), secs);
+            Ok(0)
+        }
+        Cmd::Reconstruct { base, disp, levels, output, compare } => {
+            let table = dispdec::run::reconstruct(&base, &disp, levels, &output, compare.as_deref())?;
+            if !table.is_empty() {
+                eprintln!("level  faces      RMS->scan  Hausdorff->scan  RMS<-scan  Hausdorff<-scan  (fractions of the scan's bbox diagonal)");
+                for d in &table {
+                    eprintln!(
+                        "{:>5} {:>8}  {:>10.6}  {:>15.6}  {:>9.6}  {:>15.6}",
+                        d.level, d.faces, d.rms_to_scan, d.hausdorff_to_scan, d.rms_from_scan, d.hausdorff_from_scan
+                    );
+                }
+            }
+            eprintln!("wrote {}", output.display());
+            Ok(0)
         }
         Cmd::Sample { output, faces, seed } => {
             if !(1_000..=4_000_000).contains(&faces) {

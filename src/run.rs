@@ -400,3 +400,103 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
     }
     Ok(report)
 }
+
+// ---------------------------------------------------------------------------------------------
+// dispdec bake / reconstruct
+
+/// Loads a base mesh with its directions (`vn`, else the README's rule) for bake/reconstruct.
+pub fn load_base_with_directions(path: &std::path::Path) -> Result<(crate::validate::Base, bool), Error> {
+    let base = mesh::load_base(path)?;
+    if base.normals.len() == base.positions.len() {
+        return Ok((crate::validate::Base { positions: base.positions, directions: base.normals, faces: base.faces }, true));
+    }
+    let (start, vf) = mesh::vertex_faces(base.positions.len(), &base.faces);
+    let directions = (0..base.positions.len())
+        .map(|v| {
+            let cross: Vec<glam::DVec3> = vf[start[v] as usize..start[v + 1] as usize]
+                .iter()
+                .map(|&f| {
+                    let t = base.faces[f as usize].map(|w| base.positions[w as usize]);
+                    crate::geometry::face_cross(t[0], t[1], t[2])
+                })
+                .collect();
+            crate::geometry::vertex_direction(&cross)
+        })
+        .collect();
+    Ok((crate::validate::Base { positions: base.positions, directions, faces: base.faces }, false))
+}
+
+/// `dispdec bake HIGH BASE.obj -o DISP.(png|pfm)`: returns (texels with d, texels in the atlas).
+pub fn bake(high: &std::path::Path, base: &std::path::Path, out: &std::path::Path, resolution: u32, dmax: Option<f64>) -> Result<(usize, usize, f64), Error> {
+    let t0 = Instant::now();
+    let ext = out.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+    if ext != "png" && ext != "pfm" {
+        return Err(Error::Usage(format!("{}: the displacement map is written as .png (16-bit + .png.json) or .pfm (32-bit float)", out.display())));
+    }
+    if !(16..=16384).contains(&resolution) {
+        return Err(Error::Usage(format!("--resolution must be between 16 and 16384, got {resolution}")));
+    }
+    let scan = mesh::load_dense(high)?;
+    let (b, _) = load_base_with_directions(base)?;
+    let dmax = dmax.unwrap_or_else(|| crate::decimate::DEFAULT_DMAX_FRACTION * mesh::bbox_diagonal(scan.positions.iter().copied()));
+    let dense = mesh::DenseData::new(&scan.positions, &scan.faces);
+    let map = crate::bake::bake(&dense, &b, NormalMode::Interpolated, dmax, resolution);
+    if ext == "pfm" {
+        write_atomic(out, &map.to_pfm())?;
+    } else {
+        let (png, q) = map.to_png16();
+        let side = out.with_extension("png.json");
+        write_atomic(&side, serde_json::to_string_pretty(&q).expect("sidecar").as_bytes())?;
+        if let Err(e) = write_atomic(out, &png) {
+            let _ = std::fs::remove_file(&side);
+            return Err(e);
+        }
+    }
+    Ok((map.defined(), map.d.len(), t0.elapsed().as_secs_f64()))
+}
+
+/// `dispdec reconstruct BASE.obj DISP --levels L -o OUT.obj [--compare HIGH]`: writes the mesh
+/// at level L and returns the distances of levels 0..=L when comparing.
+pub fn reconstruct(
+    base: &std::path::Path,
+    disp: &std::path::Path,
+    levels: u32,
+    out: &std::path::Path,
+    compare: Option<&std::path::Path>,
+) -> Result<Vec<crate::reconstruct::Distances>, Error> {
+    if levels > 6 {
+        return Err(Error::Usage(format!("--levels must be 0 to 6, got {levels}")));
+    }
+    let (b, _) = load_base_with_directions(base)?;
+    let map = crate::bake::DispMap::read(disp, b.faces.len())?;
+    let scan = match compare {
+        Some(p) => Some(mesh::load_dense(p)?),
+        None => None,
+    };
+    let mut table = Vec::new();
+    let mut last = None;
+    for level in 0..=levels {
+        if scan.is_none() && level < levels {
+            continue;
+        }
+        let r = crate::reconstruct::reconstruct(&b, &map, level);
+        if let Some(s) = &scan {
+            table.push(crate::reconstruct::compare(&r, level, &s.positions, &s.faces));
+        }
+        last = Some(r);
+    }
+    let r = last.expect("at least one level");
+    let mut text = String::with_capacity(40 * (r.positions.len() + r.faces.len()));
+    {
+        use std::fmt::Write;
+        let _ = writeln!(text, "# dispdec reconstruct: {} at level {levels}, {} faces", base.display(), r.faces.len());
+        for p in &r.positions {
+            let _ = writeln!(text, "v {} {} {}", p.x, p.y, p.z);
+        }
+        for f in &r.faces {
+            let _ = writeln!(text, "f {} {} {}", f[0] + 1, f[1] + 1, f[2] + 1);
+        }
+    }
+    write_atomic(out, text.as_bytes())?;
+    Ok(table)
+}
