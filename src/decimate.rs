@@ -515,18 +515,24 @@ impl State {
             }
             let outcomes = evaluator.evaluate(self, &batch);
             let t2 = Instant::now();
-            // With a target, never commit past it.
-            let mut outcomes = outcomes;
-            let mut faces_left = self.face_count;
-            for (c, o) in batch.iter().zip(outcomes.iter_mut()) {
-                if o.is_ok() {
-                    let k = if c.removed[1] == INVALID { 1 } else { 2 };
-                    if opts.target_faces > 0 && faces_left <= opts.target_faces {
-                        *o = Err(Reject::Link);
-                        continue;
+            // With a target, never commit past it: the rest of the batch stays untried.
+            let (mut batch, mut outcomes) = (batch, outcomes);
+            if opts.target_faces > 0 {
+                let mut faces_left = self.face_count;
+                let mut keep = batch.len();
+                for (i, (c, o)) in batch.iter().zip(outcomes.iter()).enumerate() {
+                    if o.is_ok() {
+                        if faces_left <= opts.target_faces {
+                            keep = i;
+                            break;
+                        }
+                        faces_left -= if c.removed[1] == INVALID { 1 } else { 2 };
                     }
-                    faces_left -= k;
                 }
+                for c in batch.drain(keep..) {
+                    self.push_edge(c.u, c.w);
+                }
+                outcomes.truncate(keep);
             }
             self.commit_collapses(batch, outcomes, &mut vmark, round);
             let t3 = Instant::now();

@@ -109,11 +109,8 @@ pub struct LoadedBase {
 /// Loads a base mesh for validation (see [`LoadedBase`]).
 pub fn load_base(path: &Path) -> Result<LoadedBase, Error> {
     let mesh = load_raw(path)?;
-    let (positions, faces, normals, input_index) = compact_checked(path, mesh)?;
-    let manifold = Topology::build(positions.len(), &faces).map(|_| ()).map_err(|e| {
-        let _ = &input_index;
-        e.to_string()
-    });
+    let (positions, faces, normals, _) = compact_checked(path, mesh)?;
+    let manifold = Topology::build(positions.len(), &faces).map(|_| ()).map_err(|e| e.to_string());
     Ok(LoadedBase { positions, faces, normals, manifold })
 }
 
