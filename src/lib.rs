@@ -13,6 +13,7 @@
 //! - [`decimate`]: queue, association, batch scheduler, commit;
 //! - [`grid`]: uniform grids over dense vertices and base faces (the searches for smaller |d|);
 //! - [`mapfile`]: the `BASE.map` binary format;
+//! - [`plot`]: the error-against-level chart (PNG);
 //! - [`reconstruct`]: subdivision + displacement, and distances to the scan;
 //! - [`run`]: the library side of the `decimate` command (options in, files and report out);
 //! - [`sample`]: the generator of the scan-like sample meshes in `data/`;
@@ -28,6 +29,7 @@ pub mod grid;
 pub mod local;
 pub mod mapfile;
 pub mod mesh;
+pub mod plot;
 pub mod reconstruct;
 pub mod run;
 pub mod sample;

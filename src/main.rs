@@ -124,6 +124,9 @@ enum Cmd {
         /// Measure every level against this scan (RMS and Hausdorff, both ways).
         #[arg(long)]
         compare: Option<PathBuf>,
+        /// With --compare: a PNG chart of the errors against level.
+        #[arg(long)]
+        plot: Option<PathBuf>,
     },
     /// Generate a scan-like sample mesh (bumps, a thin fin, an overhang, an open boundary).
     Sample {
@@ -281,8 +284,8 @@ fn run(cli: Cli) -> Result<i32> {
             eprintln!("wrote {}: {defined} of {total} texels carry d ({:.1} s)", output.display(), secs);
             Ok(0)
         }
-        Cmd::Reconstruct { base, disp, levels, output, compare } => {
-            let table = dispdec::run::reconstruct(&base, &disp, levels, &output, compare.as_deref())?;
+        Cmd::Reconstruct { base, disp, levels, output, compare, plot } => {
+            let table = dispdec::run::reconstruct(&base, &disp, levels, &output, compare.as_deref(), plot.as_deref())?;
             if !table.is_empty() {
                 eprintln!("level  faces      RMS->scan  Hausdorff->scan  RMS<-scan  Hausdorff<-scan  (fractions of the scan's bbox diagonal)");
                 for d in &table {

@@ -463,7 +463,11 @@ pub fn reconstruct(
     levels: u32,
     out: &std::path::Path,
     compare: Option<&std::path::Path>,
+    plot: Option<&std::path::Path>,
 ) -> Result<Vec<crate::reconstruct::Distances>, Error> {
+    if plot.is_some() && compare.is_none() {
+        return Err(Error::Usage("--plot needs --compare HIGH".into()));
+    }
     if levels > 6 {
         return Err(Error::Usage(format!("--levels must be 0 to 6, got {levels}")));
     }
@@ -498,5 +502,11 @@ pub fn reconstruct(
         }
     }
     write_atomic(out, text.as_bytes())?;
+    if let Some(p) = plot {
+        if let Err(e) = write_atomic(p, &crate::plot::error_plot(&table)) {
+            let _ = std::fs::remove_file(out);
+            return Err(e);
+        }
+    }
     Ok(table)
 }

@@ -71,7 +71,10 @@ fn level_zero_is_the_base_and_closed_bases_stay_closed() {
         r3.to_str().unwrap(),
         "--compare",
         high.to_str().unwrap(),
+        "--plot",
+        dir.join("err.png").to_str().unwrap(),
     ]);
+    assert_eq!(&std::fs::read(dir.join("err.png")).unwrap()[1..4], b"PNG", "the error chart");
     let m3 = dispdec::mesh::load_dense(&r3).expect("a manifold, consistently wound mesh");
     assert_eq!(m3.faces.len(), 20 * 64);
     let (genus, loops) = dispdec::topology::topology_summary(m3.positions.len(), &m3.faces);
