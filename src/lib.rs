@@ -11,10 +11,12 @@
 //! - [`bake`]: the displacement map over the atlas (PNG16 + sidecar, PFM);
 //! - [`bvh`]: a triangle BVH (distance and line queries);
 //! - [`decimate`]: queue, association, batch scheduler, commit;
+//! - [`gpu`]: the only place that opens a wgpu device;
 //! - [`grid`]: uniform grids over dense vertices and base faces (the searches for smaller |d|);
 //! - [`mapfile`]: the `BASE.map` binary format;
 //! - [`plot`]: the error-against-level chart (PNG);
 //! - [`reconstruct`]: subdivision + displacement, and distances to the scan;
+//! - [`render`]: headless wgpu render of meshes side by side;
 //! - [`run`]: the library side of the `decimate` command (options in, files and report out);
 //! - [`sample`]: the generator of the scan-like sample meshes in `data/`;
 //! - [`validate`]: the global check of a base mesh against its scan, and the local re-check.
@@ -25,12 +27,14 @@ pub mod decimate;
 pub mod eval;
 pub mod fold;
 pub mod geometry;
+pub mod gpu;
 pub mod grid;
 pub mod local;
 pub mod mapfile;
 pub mod mesh;
 pub mod plot;
 pub mod reconstruct;
+pub mod render;
 pub mod run;
 pub mod sample;
 pub mod topology;
@@ -45,6 +49,8 @@ pub enum Error {
     Usage(String),
     #[error("cannot write {path}: {msg}")]
     Output { path: String, msg: String },
+    #[error(transparent)]
+    Gpu(#[from] gpu::GpuError),
 }
 
 impl Error {
@@ -53,6 +59,7 @@ impl Error {
         match self {
             Error::Input { .. } | Error::Usage(_) => 2,
             Error::Output { .. } => 2,
+            Error::Gpu(_) => 1,
         }
     }
 }

@@ -128,6 +128,22 @@ enum Cmd {
         #[arg(long)]
         plot: Option<PathBuf>,
     },
+    /// Render meshes side by side (headless wgpu; lavapipe works) into a PNG.
+    Render {
+        #[arg(required = true)]
+        meshes: Vec<PathBuf>,
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Pixels per mesh.
+        #[arg(long, default_value_t = 400)]
+        size: u32,
+        /// Turn about the vertical axis (degrees).
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        yaw: f64,
+        /// Then tilt about the horizontal axis (degrees).
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        pitch: f64,
+    },
     /// Generate a scan-like sample mesh (bumps, a thin fin, an overhang, an open boundary).
     Sample {
         #[arg(short, long)]
@@ -296,6 +312,11 @@ fn run(cli: Cli) -> Result<i32> {
                 }
             }
             eprintln!("wrote {}", output.display());
+            Ok(0)
+        }
+        Cmd::Render { meshes, output, size, yaw, pitch } => {
+            let adapter = dispdec::run::render(&meshes, &output, dispdec::render::View { size, yaw, pitch })?;
+            eprintln!("wrote {} ({} meshes, {adapter})", output.display(), meshes.len());
             Ok(0)
         }
         Cmd::Sample { output, faces, seed } => {

@@ -510,3 +510,24 @@ pub fn reconstruct(
     }
     Ok(table)
 }
+
+// ---------------------------------------------------------------------------------------------
+// dispdec render
+
+/// `dispdec render MESH... -o VIEW.png`: returns the adapter used.
+pub fn render(meshes: &[PathBuf], out: &std::path::Path, view: crate::render::View) -> Result<String, Error> {
+    if meshes.is_empty() {
+        return Err(Error::Usage("render needs at least one mesh".into()));
+    }
+    if !(16..=4096).contains(&view.size) {
+        return Err(Error::Usage(format!("--size must be between 16 and 4096, got {}", view.size)));
+    }
+    let loaded = meshes
+        .iter()
+        .map(|p| mesh::load_base(p).map(|b| (b.positions, b.faces)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let gpu = crate::gpu::Gpu::new(wgpu::Backends::PRIMARY)?;
+    let (w, h, rgba) = crate::render::render(&gpu, &loaded, &view)?;
+    write_atomic(out, &crate::render::png_rgba(w, h, &rgba))?;
+    Ok(gpu.describe())
+}
