@@ -104,6 +104,9 @@ enum Cmd {
     Bake {
         high: PathBuf,
         base: PathBuf,
+        /// The decimator's BASE.map: report how closely the baked map reproduces its d.
+        #[arg(long)]
+        map: Option<PathBuf>,
         #[arg(short, long)]
         output: PathBuf,
         /// Atlas size in texels.
@@ -295,9 +298,15 @@ fn run(cli: Cli) -> Result<i32> {
             }
             Ok(if v.valid { 0 } else { 1 })
         }
-        Cmd::Bake { high, base, output, resolution, dmax } => {
-            let (defined, total, secs) = dispdec::run::bake(&high, &base, &output, resolution, dmax)?;
+        Cmd::Bake { high, base, map, output, resolution, dmax } => {
+            let (defined, total, secs, agree) = dispdec::run::bake(&high, &base, map.as_deref(), &output, resolution, dmax)?;
             eprintln!("wrote {}: {defined} of {total} texels carry d ({:.1} s)", output.display(), secs);
+            if let Some(a) = agree {
+                eprintln!(
+                    "against the map's {} vertices: |d difference| RMS {:.3e}, max {:.3e}; {} where the map has no d",
+                    a.vertices, a.rms, a.max, a.missing
+                );
+            }
             Ok(0)
         }
         Cmd::Reconstruct { base, disp, levels, output, compare, plot } => {

@@ -426,8 +426,27 @@ pub fn load_base_with_directions(path: &std::path::Path) -> Result<(crate::valid
     Ok((crate::validate::Base { positions: base.positions, directions, faces: base.faces }, false))
 }
 
-/// `dispdec bake HIGH BASE.obj -o DISP.(png|pfm)`: returns (texels with d, texels in the atlas).
-pub fn bake(high: &std::path::Path, base: &std::path::Path, out: &std::path::Path, resolution: u32, dmax: Option<f64>) -> Result<(usize, usize, f64), Error> {
+/// Agreement of a baked map with the decimator's per-vertex d (BASE.map): the map sampled at
+/// each mapped dense vertex's face and barycentrics, against that vertex's d.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MapAgreement {
+    pub vertices: usize,
+    /// Vertices whose point of the base has no d in the map (a hole of the scan there).
+    pub missing: usize,
+    pub rms: f64,
+    pub max: f64,
+}
+
+/// `dispdec bake HIGH BASE.obj [--map BASE.map] -o DISP.(png|pfm)`: returns (texels with d,
+/// texels in the atlas, seconds, agreement with BASE.map when given).
+pub fn bake(
+    high: &std::path::Path,
+    base: &std::path::Path,
+    map: Option<&std::path::Path>,
+    out: &std::path::Path,
+    resolution: u32,
+    dmax: Option<f64>,
+) -> Result<(usize, usize, f64, Option<MapAgreement>), Error> {
     let t0 = Instant::now();
     let ext = out.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
     if ext != "png" && ext != "pfm" {
@@ -440,7 +459,32 @@ pub fn bake(high: &std::path::Path, base: &std::path::Path, out: &std::path::Pat
     let (b, _) = load_base_with_directions(base)?;
     let dmax = dmax.unwrap_or_else(|| crate::decimate::DEFAULT_DMAX_FRACTION * mesh::bbox_diagonal(scan.positions.iter().copied()));
     let dense = mesh::DenseData::new(&scan.positions, &scan.faces);
+    let per_vertex = match map {
+        Some(p) => {
+            let m = crate::mapfile::MapFile::read(p)?;
+            if m.base_faces as usize != b.faces.len() {
+                return Err(Error::Input {
+                    path: p.display().to_string(),
+                    msg: format!("a map for a {}-face base, but {} has {} faces", m.base_faces, base.display(), b.faces.len()),
+                });
+            }
+            Some(m)
+        }
+        None => None,
+    };
     let map = crate::bake::bake(&dense, &b, NormalMode::Interpolated, dmax, resolution);
+    let agreement = per_vertex.map(|m| {
+        let mut diffs = Vec::new();
+        let mut missing = 0;
+        for r in m.records.iter().filter(|r| r.status == crate::mapfile::STATUS_MAPPED) {
+            match map.sample(r.face, r.bary[1] as f64, r.bary[2] as f64) {
+                Some(d) => diffs.push((d - r.d as f64).abs()),
+                None => missing += 1,
+            }
+        }
+        let rms = (diffs.iter().map(|x| x * x).sum::<f64>() / diffs.len().max(1) as f64).sqrt();
+        MapAgreement { vertices: diffs.len() + missing, missing, rms, max: diffs.iter().copied().fold(0.0, f64::max) }
+    });
     if ext == "pfm" {
         write_atomic(out, &map.to_pfm())?;
     } else {
@@ -452,7 +496,7 @@ pub fn bake(high: &std::path::Path, base: &std::path::Path, out: &std::path::Pat
             return Err(e);
         }
     }
-    Ok((map.defined(), map.d.len(), t0.elapsed().as_secs_f64()))
+    Ok((map.defined(), map.d.len(), t0.elapsed().as_secs_f64(), agreement))
 }
 
 /// `dispdec reconstruct BASE.obj DISP --levels L -o OUT.obj [--compare HIGH]`: writes the mesh
