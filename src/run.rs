@@ -323,30 +323,11 @@ pub fn validate(job: &ValidateJob) -> Result<ValidateReport, Error> {
 fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
     let t0 = Instant::now();
     let high = mesh::load_dense(&job.high)?;
-    let base = mesh::load_base(&job.base)?;
-    let (directions, from_file) = if base.normals.len() == base.positions.len() {
-        (base.normals.clone(), true)
-    } else {
-        let (start, vf) = mesh::vertex_faces(base.positions.len(), &base.faces);
-        let dirs = (0..base.positions.len())
-            .map(|v| {
-                let cross: Vec<glam::DVec3> = vf[start[v] as usize..start[v + 1] as usize]
-                    .iter()
-                    .map(|&f| {
-                        let t = base.faces[f as usize].map(|w| base.positions[w as usize]);
-                        crate::geometry::face_cross(t[0], t[1], t[2])
-                    })
-                    .collect();
-                crate::geometry::vertex_direction(&cross)
-            })
-            .collect();
-        (dirs, false)
-    };
+    let (b, from_file, manifold) = load_base_with_directions(&job.base)?;
     let dmax = job.dmax.unwrap_or_else(|| {
         crate::decimate::DEFAULT_DMAX_FRACTION * mesh::bbox_diagonal(high.positions.iter().copied())
     });
     let dense = mesh::DenseData::new(&high.positions, &high.faces);
-    let b = crate::validate::Base { positions: base.positions.clone(), directions, faces: base.faces.clone() };
     let (verdict, maps) = crate::validate::validate_with_maps(&dense, &b, job.normals, dmax, job.strict, true);
     let fold = crate::fold::fold_image(&dense, &b, &maps, job.normals, dmax, job.resolution);
     let per_face = fold.coverage();
@@ -376,9 +357,9 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
         high: job.high.display().to_string(),
         base: job.base.display().to_string(),
         dense_faces: high.faces.len(),
-        base_faces: base.faces.len(),
+        base_faces: b.faces.len(),
         directions: if from_file { "file" } else { "computed" },
-        non_manifold: base.manifold.clone().err(),
+        non_manifold: manifold.err(),
         normals: job.normals,
         backend: format!("cpu ({} threads)", rayon::current_num_threads()),
         verdict,
@@ -404,11 +385,13 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
 // ---------------------------------------------------------------------------------------------
 // dispdec bake / reconstruct
 
-/// Loads a base mesh with its directions (`vn`, else the README's rule) for bake/reconstruct.
-pub fn load_base_with_directions(path: &std::path::Path) -> Result<(crate::validate::Base, bool), Error> {
+/// Loads a base mesh with its directions (`vn`, else the README's rule): the base, whether the
+/// directions came from the file, and the manifold check's verdict.
+pub fn load_base_with_directions(path: &std::path::Path) -> Result<(crate::validate::Base, bool, Result<(), String>), Error> {
     let base = mesh::load_base(path)?;
     if base.normals.len() == base.positions.len() {
-        return Ok((crate::validate::Base { positions: base.positions, directions: base.normals, faces: base.faces }, true));
+        let b = crate::validate::Base { positions: base.positions, directions: base.normals, faces: base.faces };
+        return Ok((b, true, base.manifold));
     }
     let (start, vf) = mesh::vertex_faces(base.positions.len(), &base.faces);
     let directions = (0..base.positions.len())
@@ -423,7 +406,7 @@ pub fn load_base_with_directions(path: &std::path::Path) -> Result<(crate::valid
             crate::geometry::vertex_direction(&cross)
         })
         .collect();
-    Ok((crate::validate::Base { positions: base.positions, directions, faces: base.faces }, false))
+    Ok((crate::validate::Base { positions: base.positions, directions, faces: base.faces }, false, base.manifold))
 }
 
 /// Agreement of a baked map with the decimator's per-vertex d (BASE.map): the map sampled at
@@ -456,7 +439,7 @@ pub fn bake(
         return Err(Error::Usage(format!("--resolution must be between 16 and 16384, got {resolution}")));
     }
     let scan = mesh::load_dense(high)?;
-    let (b, _) = load_base_with_directions(base)?;
+    let (b, _, _) = load_base_with_directions(base)?;
     let dmax = dmax.unwrap_or_else(|| crate::decimate::DEFAULT_DMAX_FRACTION * mesh::bbox_diagonal(scan.positions.iter().copied()));
     let dense = mesh::DenseData::new(&scan.positions, &scan.faces);
     let per_vertex = match map {
@@ -515,7 +498,7 @@ pub fn reconstruct(
     if levels > 6 {
         return Err(Error::Usage(format!("--levels must be 0 to 6, got {levels}")));
     }
-    let (b, _) = load_base_with_directions(base)?;
+    let (b, _, _) = load_base_with_directions(base)?;
     let map = crate::bake::DispMap::read(disp, b.faces.len())?;
     let scan = match compare {
         Some(p) => Some(mesh::load_dense(p)?),

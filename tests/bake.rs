@@ -16,12 +16,7 @@ fn ok(args: &[&str]) -> String {
 #[test]
 fn png16_and_pfm_decode_to_the_same_d_within_quantisation() {
     let dir = tempdir("bake-formats");
-    let (v, f) = icosphere(4);
-    let high = dir.join("high.obj");
-    write_obj(&high, &v.iter().map(|&p| bumpy(p)).collect::<Vec<_>>(), &f);
-    let (bv, bf) = icosahedron();
-    let base = dir.join("ico.obj");
-    write_obj(&base, &bv, &bf);
+    let (high, base) = sphere_files(&dir, bumpy);
     let (png, pfm) = (dir.join("d.png"), dir.join("d.pfm"));
     ok(&["bake", high.to_str().unwrap(), base.to_str().unwrap(), "-o", png.to_str().unwrap(), "--resolution", "256"]);
     ok(&["bake", high.to_str().unwrap(), base.to_str().unwrap(), "-o", pfm.to_str().unwrap(), "--resolution", "256"]);
@@ -46,12 +41,7 @@ fn png16_and_pfm_decode_to_the_same_d_within_quantisation() {
 #[test]
 fn level_zero_is_the_base_and_closed_bases_stay_closed() {
     let dir = tempdir("rebuild");
-    let (v, f) = icosphere(4);
-    let high = dir.join("high.obj");
-    write_obj(&high, &v.iter().map(|&p| bumpy(p)).collect::<Vec<_>>(), &f);
-    let (bv, bf) = icosahedron();
-    let base = dir.join("ico.obj");
-    write_obj(&base, &bv, &bf);
+    let (high, base) = sphere_files(&dir, bumpy);
     let disp = dir.join("d.pfm");
     ok(&["bake", high.to_str().unwrap(), base.to_str().unwrap(), "-o", disp.to_str().unwrap(), "--resolution", "512"]);
     let r0 = dir.join("r0.obj");
@@ -100,7 +90,7 @@ fn horse_rebuilt_at_level_five_matches_the_scan() {
         .unwrap_or_else(|| panic!("no agreement line: {said}"));
     assert!(rms < 2.5e-4, "{said}");
     assert!(said.contains(" 0 where the map has no d"), "{said}");
-    let (b, _) = dispdec::run::load_base_with_directions(&base).unwrap();
+    let (b, _, _) = dispdec::run::load_base_with_directions(&base).unwrap();
     let map = DispMap::read(&disp, b.faces.len()).unwrap();
     let scan = dispdec::mesh::load_dense(&horse).unwrap();
     let mut last_rms = f64::INFINITY;

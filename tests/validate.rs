@@ -5,7 +5,7 @@ mod common;
 use common::*;
 use glam::DVec3;
 use serde_json::Value;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Half-angle of the mushroom cap around +z, in radians.
 const MUSHROOM: f64 = 0.45;
@@ -61,16 +61,6 @@ fn validate(dir: &Path, high: &Path, base: &Path, extra: &[&str]) -> (i32, Value
     let png_bytes = std::fs::read(&png).expect("fold image written");
     assert_eq!(&png_bytes[1..4], b"PNG");
     (code, serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap(), err)
-}
-
-fn sphere_files(dir: &Path, shape: fn(DVec3) -> DVec3) -> (PathBuf, PathBuf) {
-    let (v, f) = icosphere(4);
-    let high = dir.join("high.obj");
-    write_obj(&high, &v.iter().map(|&p| shape(p)).collect::<Vec<_>>(), &f);
-    let (bv, bf) = icosahedron();
-    let base = dir.join("ico.obj");
-    write_obj(&base, &bv, &bf);
-    (high, base)
 }
 
 #[test]

@@ -109,3 +109,13 @@ pub fn bumpy(p: DVec3) -> DVec3 {
     p * (1.0 + 0.03 * (5.0 * p.x).sin() * (4.0 * p.y).cos() + 0.01 * (13.0 * p.z).sin())
 }
 
+/// A level-4 icosphere shaped by `shape` (the scan) and the icosahedron (its base), as OBJ files.
+pub fn sphere_files(dir: &Path, shape: fn(DVec3) -> DVec3) -> (PathBuf, PathBuf) {
+    let (v, f) = icosphere(4);
+    let high = dir.join("high.obj");
+    write_obj(&high, &v.iter().map(|&p| shape(p)).collect::<Vec<_>>(), &f);
+    let (bv, bf) = icosahedron();
+    let base = dir.join("ico.obj");
+    write_obj(&base, &bv, &bf);
+    (high, base)
+}
