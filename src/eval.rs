@@ -68,16 +68,6 @@ pub enum Reject {
 }
 
 impl Reject {
-    pub const ALL: [Reject; 8] = [
-        Reject::Link,
-        Reject::Boundary,
-        Reject::Valence,
-        Reject::Foldover,
-        Reject::Unmapped,
-        Reject::Flip,
-        Reject::Tear,
-        Reject::Ambiguous,
-    ];
     pub fn name(self) -> &'static str {
         match self {
             Reject::Link => "link",
