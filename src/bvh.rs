@@ -13,14 +13,14 @@ pub struct Bvh {
     order: Vec<u32>,
 }
 
-#[derive(Clone, Copy)]
-struct Node {
-    lo: DVec3,
-    hi: DVec3,
+#[derive(Clone, Copy, Debug)]
+pub struct Node {
+    pub lo: DVec3,
+    pub hi: DVec3,
     /// Leaf: first index into `order` and count; inner: left and right child (count = 0).
-    a: u32,
-    b: u32,
-    count: u32,
+    pub a: u32,
+    pub b: u32,
+    pub count: u32,
 }
 
 fn tri(pos: &[DVec3], faces: &[[u32; 3]], f: u32) -> [DVec3; 3] {
@@ -66,6 +66,15 @@ impl Bvh {
             rec(&mut nodes, &mut order, 0, &centers, &boxes);
         }
         Bvh { nodes, order }
+    }
+
+    /// The nodes, root first (the GPU projection walks them).
+    pub fn nodes(&self) -> &[Node] {
+        &self.nodes
+    }
+    /// Triangle indices in leaf order (a leaf covers `order[a .. a + count]`).
+    pub fn order(&self) -> &[u32] {
+        &self.order
     }
 
     fn leaf(&self, node: &Node) -> &[u32] {

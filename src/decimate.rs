@@ -497,7 +497,7 @@ impl State {
     }
 
     /// Runs rounds until the queue is empty or the target is reached.
-    pub fn run(&mut self, evaluator: &dyn Evaluator, opts: &Options, mut progress: impl FnMut(usize)) {
+    pub fn run(&mut self, evaluator: &dyn Evaluator, opts: &Options, mut progress: impl FnMut(usize)) -> Result<(), crate::gpu::GpuError> {
         let mut marks = vec![0u32; self.pos.len()];
         let mut vmark = vec![0u32; self.dense.pos.len()];
         let mut round = 0u32;
@@ -513,7 +513,7 @@ impl State {
                 }
                 continue;
             }
-            let outcomes = evaluator.evaluate(self, &batch);
+            let outcomes = evaluator.evaluate(self, &batch)?;
             let t2 = Instant::now();
             // With a target, never commit past it: the rest of the batch stays untried.
             let (mut batch, mut outcomes) = (batch, outcomes);
@@ -541,6 +541,7 @@ impl State {
             self.stats.time_commit_s += (t3 - t2).as_secs_f64();
             progress(self.face_count);
         }
+        Ok(())
     }
 
     /// The base mesh, compacted: positions, directions, faces, and the map from internal face

@@ -254,6 +254,23 @@ pub fn find_primary(
     }
 }
 
+/// The best hit of `x` on triangle `t` alone, by the rule of [`find_primary`] (condition (4)
+/// when `check4`, smallest |d|, the first of equal ones): the f64 answer on the triangle the GPU
+/// chose.
+pub fn best_on_triangle(x: DVec3, normals: &[DVec3], tris: &Tris, t: usize, mode: NormalMode, dmax: f64, check4: bool) -> Option<ShellHit> {
+    let tie = SAME_SOLUTION_REL * dmax;
+    let mut best: Option<ShellHit> = None;
+    for h in solve_tri(x, tris, t, mode, dmax).iter() {
+        if check4 && !condition4(direction_at(tris, t, &h, mode), normals.iter().copied()) {
+            continue;
+        }
+        if best.is_none_or(|b| h.d.abs() < b.d.abs() - tie) {
+            best = Some(h);
+        }
+    }
+    best
+}
+
 /// Geometry of one base face as the checks see it.
 #[derive(Clone, Copy, Debug)]
 pub struct FaceInfo {
@@ -525,8 +542,9 @@ pub type Outcome = Result<Accepted, Reject>;
 pub trait Evaluator: Sync {
     /// The backend and adapter, for reports.
     fn name(&self) -> String;
-    /// Evaluates every candidate of a batch; outcomes in batch order.
-    fn evaluate(&self, state: &State, batch: &[Candidate]) -> Vec<Outcome>;
+    /// Evaluates every candidate of a batch; outcomes in batch order. Fails only when the
+    /// device fails (never for a candidate).
+    fn evaluate(&self, state: &State, batch: &[Candidate]) -> Result<Vec<Outcome>, crate::gpu::GpuError>;
 }
 
 /// The reference evaluator: Rust, parallel over the batch with rayon.
@@ -536,10 +554,10 @@ impl Evaluator for CpuEvaluator {
     fn name(&self) -> String {
         format!("cpu ({} threads)", rayon::current_num_threads())
     }
-    fn evaluate(&self, state: &State, batch: &[Candidate]) -> Vec<Outcome> {
+    fn evaluate(&self, state: &State, batch: &[Candidate]) -> Result<Vec<Outcome>, crate::gpu::GpuError> {
         if batch.len() == 1 {
-            return vec![state.evaluate_candidate(&batch[0])];
+            return Ok(vec![state.evaluate_candidate(&batch[0])]);
         }
-        batch.par_iter().map(|c| state.evaluate_candidate(c)).collect()
+        Ok(batch.par_iter().map(|c| state.evaluate_candidate(c)).collect())
     }
 }

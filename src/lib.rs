@@ -11,7 +11,8 @@
 //! - [`bake`]: the displacement map over the atlas (PNG16 + sidecar, PFM);
 //! - [`bvh`]: a triangle BVH (distance and line queries);
 //! - [`decimate`]: queue, association, batch scheduler, commit;
-//! - [`gpu`]: the only place that opens a wgpu device;
+//! - [`gpu`]: the only place that calls wgpu (device, shell kernel context, buffers);
+//! - [`gpu_eval`]: the GPU evaluator and projection, their tolerance band, the WGSL constants;
 //! - [`grid`]: uniform grids over dense vertices and base faces (the searches for smaller |d|);
 //! - [`mapfile`]: the `BASE.map` binary format;
 //! - [`plot`]: the error-against-level chart (PNG);
@@ -28,6 +29,7 @@ pub mod eval;
 pub mod fold;
 pub mod geometry;
 pub mod gpu;
+pub mod gpu_eval;
 pub mod grid;
 pub mod local;
 pub mod mapfile;
@@ -59,7 +61,9 @@ impl Error {
         match self {
             Error::Input { .. } | Error::Usage(_) => 2,
             Error::Output { .. } => 2,
-            Error::Gpu(_) => 1,
+            // The machine cannot do what was asked (no adapter, a device failure): not a
+            // verdict, so not 1.
+            Error::Gpu(_) => 2,
         }
     }
 }

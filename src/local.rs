@@ -17,7 +17,7 @@ use glam::DVec3;
 impl State {
     /// Builds the neighbourhood of a candidate after collapse with `placement`: region (less
     /// the deleted faces) and border, with the new directions. Fails on a fold-over.
-    fn build_neighbourhood(&self, c: &Candidate, p: DVec3, tris: &mut Tris) -> Result<(Vec<(u32, DVec3)>, usize), Reject> {
+    pub(crate) fn build_neighbourhood(&self, c: &Candidate, p: DVec3, tris: &mut Tris) -> Result<(Vec<(u32, DVec3)>, usize), Reject> {
         tris.clear();
         let relabel = |v: u32| if v == c.w { c.u } else { v };
         let pos_of = |v: u32| if v == c.u { p } else { self.pos[v as usize] };
@@ -87,21 +87,53 @@ impl State {
 
     fn evaluate_placement(&self, c: &Candidate, p: DVec3, tris: &mut Tris, scratch: &mut Scratch) -> Result<Accepted, Reject> {
         let (new_dirs, n_region) = self.build_neighbourhood(c, p, tris)?;
-        let dense = &self.dense;
-        let mut maps = vec![Map { face: INVALID, bary: [0.0; 3], d: 0.0 }; c.dense.len()];
         let mut normals = Vec::new();
+        let maps = self.solve_region_vertices(c, tris, |i, x, pinched| {
+            self.dense.vertex_normals(c.dense[i], &mut normals);
+            find_primary(x, &normals, tris, self.mode, self.dmax, !pinched, self.strict && !pinched, scratch)
+        })?;
+        self.finish_placement(c, p, new_dirs, n_region, tris, maps, scratch)
+    }
+
+    /// The primary solutions of the region's dense vertices over the neighbourhood, in
+    /// `c.order` (neighbours fail together), by `solve(index into c.dense, position, pinched)`;
+    /// fails at the first vertex without one (or, strict, with two).
+    pub(crate) fn solve_region_vertices(
+        &self,
+        c: &Candidate,
+        tris: &Tris,
+        mut solve: impl FnMut(usize, DVec3, bool) -> Found,
+    ) -> Result<Vec<Map>, Reject> {
+        let mut maps = vec![Map { face: INVALID, bary: [0.0; 3], d: 0.0 }; c.dense.len()];
         for &i in &c.order {
             let v = c.dense[i as usize];
             let x = self.dense.pos[v as usize];
-            dense.vertex_normals(v, &mut normals);
             let pinched = self.dense.pinched[v as usize];
-            match find_primary(x, &normals, tris, self.mode, self.dmax, !pinched, self.strict && !pinched, scratch) {
+            match solve(i as usize, x, pinched) {
                 Found::Hit(t, h) => maps[i as usize] = Map { face: tris.ids[t], bary: h.bary, d: h.d },
                 Found::Ambiguous => return Err(Reject::Ambiguous),
                 Found::None if pinched => maps[i as usize] = self.nearest_fallback(x, tris),
                 Found::None => return Err(Reject::Unmapped),
             }
         }
+        Ok(maps)
+    }
+
+    /// The rest of a placement's test once the region's vertices are solved: faces outside
+    /// that may hold smaller |d|, vertices whose primary moves onto the region, and the flip
+    /// and tear checks.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn finish_placement(
+        &self,
+        c: &Candidate,
+        p: DVec3,
+        new_dirs: Vec<(u32, DVec3)>,
+        n_region: usize,
+        tris: &Tris,
+        mut maps: Vec<Map>,
+        scratch: &mut Scratch,
+    ) -> Result<Accepted, Reject> {
+        let dense = &self.dense;
         self.far_primaries(c, tris, &mut maps, scratch);
         let extras = self.moved_primaries(c, tris, n_region, scratch);
         let faces_owned;

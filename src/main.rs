@@ -57,8 +57,9 @@ enum Cmd {
         /// The paper's uniqueness rule: exactly one solution satisfying (4) per dense vertex.
         #[arg(long)]
         strict: bool,
-        /// Evaluator backend (this build evaluates on the CPU).
-        #[arg(long, value_enum, default_value = "cpu")]
+        /// Where batches are evaluated: cpu, gpu (WGSL kernels; fails without an adapter), or
+        /// auto (a hardware GPU if there is one, else the CPU, saying why).
+        #[arg(long, value_enum, default_value = "auto")]
         backend: Backend,
         /// Worker threads (default: all cores).
         #[arg(long)]
@@ -92,8 +93,8 @@ enum Cmd {
         strict: bool,
         #[arg(long, value_enum, default_value = "interpolated")]
         normals: Normals,
-        /// Evaluator backend (this build validates on the CPU).
-        #[arg(long, value_enum, default_value = "cpu")]
+        /// Where the projection runs: cpu, gpu, or auto (as for decimate).
+        #[arg(long, value_enum, default_value = "auto")]
         backend: Backend,
         /// Worker threads (default: all cores).
         #[arg(long)]
@@ -170,15 +171,11 @@ fn main() {
     }
 }
 
-/// This build evaluates on the CPU: `auto` says so, `gpu` is refused.
-fn check_backend(backend: Backend) -> Result<()> {
+fn backend_of(backend: Backend) -> dispdec::run::Backend {
     match backend {
-        Backend::Cpu => Ok(()),
-        Backend::Auto => {
-            eprintln!("dispdec: --backend auto: no GPU evaluator in this build; using the CPU");
-            Ok(())
-        }
-        Backend::Gpu => Err(dispdec::Error::Usage("--backend gpu: no GPU evaluator in this build".into()).into()),
+        Backend::Cpu => dispdec::run::Backend::Cpu,
+        Backend::Gpu => dispdec::run::Backend::Gpu,
+        Backend::Auto => dispdec::run::Backend::Auto,
     }
 }
 
@@ -199,8 +196,8 @@ fn run(cli: Cli) -> Result<i32> {
             batch,
             quiet,
         } => {
-            check_backend(backend)?;
             let job = DecimateJob {
+                backend: backend_of(backend),
                 input,
                 output,
                 map,
@@ -247,8 +244,8 @@ fn run(cli: Cli) -> Result<i32> {
             Ok(0)
         }
         Cmd::Validate { high, base, json, fold_image, resolution, dmax, strict, normals, backend, threads } => {
-            check_backend(backend)?;
             let job = dispdec::run::ValidateJob {
+                backend: backend_of(backend),
                 high,
                 base,
                 json,

@@ -4,6 +4,7 @@ use crate::decimate::{Options, State, Stats};
 use crate::topology::topology_summary;
 use crate::validate::Recheck;
 use crate::eval::{CpuEvaluator, Evaluator, NormalMode};
+use crate::gpu_eval::{BandStats, GpuEvaluator};
 use crate::mapfile::{MapFile, Record, STATUS_MAPPED, STATUS_PINCHED, STATUS_UNREFERENCED};
 use crate::mesh::{self, write_atomic};
 use crate::Error;
@@ -22,6 +23,54 @@ pub struct DecimateJob {
     pub threads: Option<usize>,
     /// Show a progress bar (only drawn when stderr is a terminal).
     pub progress: bool,
+    pub backend: Backend,
+}
+
+/// Where batches are evaluated (`--backend`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Backend {
+    Cpu,
+    /// The WGSL shell kernels on a GPU adapter; failing to open one is an error.
+    Gpu,
+    /// A hardware GPU adapter when there is one, else the CPU (with a one-line message why).
+    Auto,
+}
+
+/// Opens the GPU evaluator the backend asks for (`None`: the CPU). `auto` takes a hardware
+/// adapter only: on a software one (lavapipe, whose "GPU" is these same CPU cores) the CPU
+/// evaluator is faster, so it says so and uses the CPU; `--backend gpu` forces any adapter.
+pub fn open_backend(backend: Backend, dense: &crate::mesh::DenseData) -> Result<Option<GpuEvaluator>, Error> {
+    let open = || -> Result<GpuEvaluator, crate::gpu::GpuError> {
+        let gpu = crate::gpu::Gpu::new(wgpu::Backends::PRIMARY)?;
+        GpuEvaluator::new(gpu, dense)
+    };
+    match backend {
+        Backend::Cpu => Ok(None),
+        Backend::Gpu => Ok(Some(open()?)),
+        Backend::Auto => match crate::gpu::Gpu::adapter_info(wgpu::Backends::PRIMARY) {
+            Err(e) => {
+                eprintln!("dispdec: --backend auto: using the CPU: {e}");
+                Ok(None)
+            }
+            Ok(info) if info.device_type == wgpu::DeviceType::Cpu => {
+                eprintln!(
+                    "dispdec: --backend auto: using the CPU: the only adapter, {} ({:?}), is software rendering on these same cores (--backend gpu forces it)",
+                    info.name, info.backend
+                );
+                Ok(None)
+            }
+            Ok(_) => match open() {
+                Ok(g) => {
+                    eprintln!("dispdec: --backend auto: using the GPU {}", g.adapter());
+                    Ok(Some(g))
+                }
+                Err(e) => {
+                    eprintln!("dispdec: --backend auto: using the CPU: {e}");
+                    Ok(None)
+                }
+            },
+        },
+    }
 }
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -74,6 +123,9 @@ pub struct Report {
     pub unmapped_at_start: usize,
     pub backend: String,
     pub adapter: String,
+    /// GPU backend: how the kernels' answers fell (decided on the GPU, or in the tolerance
+    /// band and decided in f64); `null` on the CPU.
+    pub gpu_band: Option<BandStats>,
     pub collapses: Stats,
     pub recheck: RecheckSummary,
     /// The global check (every dense vertex against the whole base mesh).
@@ -107,6 +159,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
     let t_loaded = Instant::now();
     let (genus, loops_in) = topology_summary(dense.positions.len(), &dense.faces);
     let mut state = State::new(&dense, &job.options);
+    let gpu = open_backend(job.backend, &state.dense)?;
     let t_init = Instant::now();
 
     let faces_in = dense.faces.len();
@@ -121,13 +174,17 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
     } else {
         None
     };
-    let evaluator = CpuEvaluator;
-    state.run(&evaluator, &job.options, |faces| {
+    let cpu = CpuEvaluator;
+    let evaluator: &dyn Evaluator = match &gpu {
+        Some(g) => g,
+        None => &cpu,
+    };
+    state.run(evaluator, &job.options, |faces| {
         if let Some(pb) = &bar {
             pb.set_position((faces_in - faces) as u64);
             pb.set_message(format!("{faces} faces"));
         }
-    });
+    })?;
     if let Some(pb) = &bar {
         pb.finish_and_clear();
     }
@@ -136,14 +193,15 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
     let t_check = Instant::now();
 
     let base = state.compact();
-    let global = crate::validate::validate(
+    let (global, _) = crate::validate::validate_on(
         &state.dense,
         &crate::validate::Base { positions: base.positions.clone(), directions: base.directions.clone(), faces: base.faces.clone() },
         job.options.normals,
         state.dmax,
         false,
         false,
-    );
+        gpu.as_ref(),
+    )?;
     let (_, loops_out) = topology_summary(base.positions.len(), &base.faces);
     let header = format!(
         "dispdec base mesh: {} faces from {} ({} normals{})\nvn are the directions N used by the displacement map",
@@ -194,8 +252,9 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         dmax: state.dmax,
         max_abs_d: recheck.max_abs_d,
         unmapped_at_start: state.unmapped_at_start,
-        backend: "cpu".into(),
+        backend: if gpu.is_some() { "gpu".into() } else { "cpu".into() },
         adapter: evaluator.name(),
+        gpu_band: gpu.as_ref().map(|g| g.stats()),
         collapses: state.stats.clone(),
         recheck: RecheckSummary {
             valid: recheck.ok(),
@@ -262,6 +321,7 @@ pub struct ValidateJob {
     pub strict: bool,
     pub normals: NormalMode,
     pub threads: Option<usize>,
+    pub backend: Backend,
 }
 
 /// One failing element, by its index in the input file and its position.
@@ -297,6 +357,8 @@ pub struct ValidateReport {
     pub non_manifold: Option<String>,
     pub normals: NormalMode,
     pub backend: String,
+    /// GPU backend: how the projection's answers fell; `null` on the CPU.
+    pub gpu_band: Option<BandStats>,
     pub verdict: crate::validate::Verdict,
     pub first_failures: Vec<Failure>,
     pub coverage: CoverageSummary,
@@ -328,7 +390,8 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
         crate::decimate::DEFAULT_DMAX_FRACTION * mesh::bbox_diagonal(high.positions.iter().copied())
     });
     let dense = mesh::DenseData::new(&high.positions, &high.faces);
-    let (verdict, maps) = crate::validate::validate_with_maps(&dense, &b, job.normals, dmax, job.strict, true);
+    let gpu = open_backend(job.backend, &dense)?;
+    let (verdict, maps) = crate::validate::validate_on(&dense, &b, job.normals, dmax, job.strict, true, gpu.as_ref())?;
     let fold = crate::fold::fold_image(&dense, &b, &maps, job.normals, dmax, job.resolution);
     let per_face = fold.coverage();
     let coverage = CoverageSummary {
@@ -361,7 +424,11 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
         directions: if from_file { "file" } else { "computed" },
         non_manifold: manifold.err(),
         normals: job.normals,
-        backend: format!("cpu ({} threads)", rayon::current_num_threads()),
+        backend: match &gpu {
+            Some(g) => format!("gpu: {}", g.adapter()),
+            None => format!("cpu ({} threads)", rayon::current_num_threads()),
+        },
+        gpu_band: gpu.as_ref().map(|g| g.stats()),
         verdict,
         first_failures,
         coverage,

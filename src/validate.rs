@@ -206,21 +206,47 @@ pub fn validate_with_maps(
     strict: bool,
     second: bool,
 ) -> (Verdict, Vec<Option<Map>>) {
-    let second = second || strict;
-    let bvh = Bvh::build(&base.positions, &base.faces);
-    let adj = dense;
-    let maps: Vec<Option<Map>> = (0..dense.pos.len() as u32)
+    match validate_on(dense, base, mode, dmax, strict, second, None) {
+        Ok(r) => r,
+        Err(e) => unreachable!("the CPU projection cannot fail: {e}"),
+    }
+}
+
+/// The primary solution of every dense vertex over the whole base, on the CPU.
+fn project_cpu(dense: &DenseData, base: &Base, bvh: &Bvh, mode: NormalMode, dmax: f64) -> Vec<Option<Map>> {
+    (0..dense.pos.len() as u32)
         .into_par_iter()
         .map_init(
             || (Scratch::default(), Vec::new(), Vec::new(), Tris::default()),
             |(scratch, normals, near, tris), v| {
-                adj.vertex_normals(v, normals);
+                dense.vertex_normals(v, normals);
                 let x = dense.pos[v as usize];
                 let pinched = dense.pinched[v as usize];
-                primary_global(base, &bvh, x, normals, mode, dmax, !pinched, scratch, near, tris)
+                primary_global(base, bvh, x, normals, mode, dmax, !pinched, scratch, near, tris)
             },
         )
-        .collect();
+        .collect()
+}
+
+/// [`validate_with_maps`] with the projection step on `gpu` when given (the GPU decides each
+/// vertex's primary triangle; the tolerance band and the d values are settled in f64, so the
+/// verdict is the CPU's).
+pub fn validate_on(
+    dense: &DenseData,
+    base: &Base,
+    mode: NormalMode,
+    dmax: f64,
+    strict: bool,
+    second: bool,
+    gpu: Option<&crate::gpu_eval::GpuEvaluator>,
+) -> Result<(Verdict, Vec<Option<Map>>), crate::gpu::GpuError> {
+    let second = second || strict;
+    let bvh = Bvh::build(&base.positions, &base.faces);
+    let adj = dense;
+    let maps: Vec<Option<Map>> = match gpu {
+        Some(g) => g.project(dense, base, &bvh, mode, dmax)?,
+        None => project_cpu(dense, base, &bvh, mode, dmax),
+    };
     let (vf_start, vf) = vertex_faces(base.positions.len(), &base.faces);
     let ctx = ValidateContext { base, vf_start, vf, bvh: &bvh, maps: &maps, pinched: &dense.pinched, mode, dmax };
     let failures: Vec<(u32, Reject)> = (0..dense.faces.len() as u32)
@@ -287,7 +313,7 @@ pub fn validate_with_maps(
         first_torn: torn.into_iter().take(10).collect(),
     };
     let maps = maps.into_iter().enumerate().map(|(v, m)| if dense.pinched[v] { None } else { m }).collect();
-    (verdict, maps)
+    Ok((verdict, maps))
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -81,7 +81,7 @@ fn render_command_writes_a_png() {
     let out = dir.join("view.png");
     let o = run(&["render", m.to_str().unwrap(), m.to_str().unwrap(), "-o", out.to_str().unwrap(), "--size", "64"]);
     let err = String::from_utf8_lossy(&o.stderr);
-    if o.status.code() == Some(1) && err.contains("no GPU adapter") && !require_gpu() {
+    if o.status.code() == Some(2) && err.contains("no GPU adapter") && !require_gpu() {
         eprintln!("SKIPPED: {err}");
         return;
     }

@@ -1,0 +1,302 @@
+//! The WGSL shell kernels: they parse and validate with wgpu's naga (no GPU needed), every
+//! #[repr(C)] struct matches its WGSL struct, the GPU's decisions agree with the f64 oracle
+//! outside the tolerance band on real batches (bunny, at several stages and in every mode), and
+//! the GPU backend gives the CPU backend's bytes end to end. GPU tests request Backends::VULKAN
+//! and assert it; with DISPDEC_REQUIRE_GPU=1 (the README's test command) a missing adapter fails.
+
+mod common;
+use common::*;
+use dispdec::decimate::{Options, State};
+use dispdec::eval::{find_primary, CpuEvaluator, Evaluator, Found, NormalMode, Scratch};
+use dispdec::gpu::{Gpu, GpuAnswer, GpuNode, GpuParams, GpuQuery, GpuTri};
+use dispdec::gpu_eval::*;
+use serde_json::Value;
+use wgpu::naga;
+
+fn require_gpu() -> bool {
+    std::env::var("DISPDEC_REQUIRE_GPU").map(|v| v == "1").unwrap_or(false)
+}
+
+/// A Vulkan adapter, or `None` (a skip, said out loud) when none is there and none is required.
+fn vulkan() -> Option<Gpu> {
+    match Gpu::new(wgpu::Backends::VULKAN) {
+        Ok(g) => {
+            assert_eq!(g.info.backend, wgpu::Backend::Vulkan, "{}", g.describe());
+            eprintln!("adapter: {}", g.describe());
+            Some(g)
+        }
+        Err(e) if !require_gpu() => {
+            eprintln!("SKIPPED (set DISPDEC_REQUIRE_GPU=1 to make this a failure): {e}");
+            None
+        }
+        Err(e) => panic!("DISPDEC_REQUIRE_GPU=1 but no Vulkan adapter: {e}"),
+    }
+}
+
+fn module() -> naga::Module {
+    let src = shell_source();
+    let module = naga::front::wgsl::parse_str(&src).unwrap_or_else(|e| panic!("shell.wgsl: {}", e.emit_to_string(&src)));
+    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("shell.wgsl does not validate: {e:?}"));
+    module
+}
+
+#[test]
+fn shell_wgsl_parses_and_validates() {
+    let m = module();
+    for name in ["evaluate_candidates", "project_vertices"] {
+        let ep = m.entry_points.iter().find(|e| e.name == name).unwrap_or_else(|| panic!("entry point {name}"));
+        assert_eq!(ep.stage, naga::ShaderStage::Compute);
+        assert_eq!(ep.workgroup_size, [dispdec::gpu::WORKGROUP_SIZE, 1, 1]);
+    }
+    // The constants come from Rust, once.
+    let src = shell_source();
+    assert!(src.contains(&format!("const BARY_EPS: f32 = {:e};", dispdec::geometry::BARY_EPS as f32)));
+    assert!(!SHELL_WGSL.contains("const BAND_D"), "constants must be generated, not written in the WGSL");
+    // The kernels mirror the Rust oracle's functions by name.
+    for f in ["cubic_coeffs", "poly_eval", "quadratic_roots", "polish_root", "cubic_roots_in_unit", "barycentric", "clamp_bary", "solve_shell", "solve_constant", "interpolate_direction", "condition4", "triangle_distance"] {
+        assert!(m.functions.iter().any(|(_, func)| func.name.as_deref() == Some(f)), "WGSL lacks {f}");
+    }
+}
+
+/// (offset, size) of every member of WGSL struct `name`, and its span.
+fn wgsl_struct(m: &naga::Module, name: &str) -> (Vec<(String, u32)>, u32) {
+    for (_, ty) in m.types.iter() {
+        if ty.name.as_deref() == Some(name) {
+            if let naga::TypeInner::Struct { members, span } = &ty.inner {
+                return (members.iter().map(|mb| (mb.name.clone().unwrap_or_default(), mb.offset)).collect(), *span);
+            }
+        }
+    }
+    panic!("no WGSL struct {name}");
+}
+
+macro_rules! same_layout {
+    ($m:expr, $rust:ty, $wgsl:expr, [$($field:ident),+]) => {{
+        let (members, span) = wgsl_struct(&$m, $wgsl);
+        let rust: Vec<(String, u32)> = vec![$((stringify!($field).to_string(), std::mem::offset_of!($rust, $field) as u32)),+];
+        assert_eq!(members, rust, "member offsets of {} vs WGSL {}", stringify!($rust), $wgsl);
+        assert_eq!(std::mem::size_of::<$rust>() as u32, span, "size of {} vs WGSL {}", stringify!($rust), $wgsl);
+    }};
+}
+
+#[test]
+fn repr_c_structs_match_their_wgsl_structs() {
+    let m = module();
+    same_layout!(m, GpuTri, "Tri", [p0, p1, p2, n0, n1, n2, sphere]);
+    same_layout!(m, GpuQuery, "Query", [x, vertex, tri_start, tri_count, flags, pad]);
+    same_layout!(m, GpuAnswer, "Answer", [tri, status, d, second, bary]);
+    same_layout!(m, GpuNode, "Node", [lo, a, hi, b]);
+    same_layout!(m, GpuParams, "Params", [dmax, mode, query_count, node_count]);
+}
+
+#[derive(Default, Debug)]
+struct Parity {
+    compared: u64,
+    band_tie: u64,
+    band_marginal: u64,
+    disagree: u64,
+    max_d_err: f64,
+}
+
+/// Decimates the bunny on the CPU down to each stage, then sends one batch through both
+/// evaluators: the kernel's raw answers against `find_primary` (f64) per query, and the two
+/// evaluators' outcomes per candidate.
+fn parity_on_bunny(gpu: Gpu, opts: Options, stages: &[usize]) -> Parity {
+    let bunny = real_scan("bunny.ply.gz").expect("bunny");
+    let scan = dispdec::mesh::load_dense(&bunny).unwrap();
+    let mut state = State::new(&scan, &opts);
+    let ev = GpuEvaluator::new(gpu, &state.dense).unwrap();
+    let mut p = Parity::default();
+    for (k, &stage) in stages.iter().enumerate() {
+        let o = Options { target_faces: stage, ..opts.clone() };
+        state.run(&CpuEvaluator, &o, |_| {}).unwrap();
+        let mut marks = vec![0u32; state.pos.len()];
+        let batch = state.pick_collapses(64, &mut marks, u32::MAX - k as u32);
+        assert!(!batch.is_empty());
+        let (mut scratch, mut normals) = (Scratch::default(), Vec::new());
+        for (ci, _pi, tris, answers) in ev.raw_answers(&state, &batch).unwrap() {
+            let c = &batch[ci];
+            for (i, a) in answers.iter().enumerate() {
+                let v = c.dense[i];
+                let pinched = state.dense.pinched[v as usize];
+                state.dense.vertex_normals(v, &mut normals);
+                let x = state.dense.pos[v as usize];
+                let cpu = find_primary(x, &normals, &tris, state.mode, state.dmax, !pinched, state.strict && !pinched, &mut scratch);
+                p.compared += 1;
+                let agree = match (a.status, cpu) {
+                    (STATUS_BAND_TIE, _) => {
+                        p.band_tie += 1;
+                        true
+                    }
+                    (STATUS_BAND_MARGINAL, _) => {
+                        p.band_marginal += 1;
+                        true
+                    }
+                    (STATUS_HIT, Found::Hit(t, h)) => {
+                        let err = (h.d - a.d as f64).abs() / state.dmax;
+                        p.max_d_err = p.max_d_err.max(err);
+                        t == a.tri as usize && err <= BAND_D
+                    }
+                    (STATUS_NONE, Found::None) | (STATUS_AMBIGUOUS, Found::Ambiguous) => true,
+                    _ => false,
+                };
+                if !agree {
+                    p.disagree += 1;
+                    eprintln!("disagreement at stage {stage}, vertex {v}: gpu {a:?}, cpu {cpu:?}");
+                }
+            }
+        }
+        // Whole outcomes: identical, band included (the band is settled in f64).
+        let g = ev.evaluate(&state, &batch).unwrap();
+        let c = CpuEvaluator.evaluate(&state, &batch).unwrap();
+        for (i, (g, c)) in g.iter().zip(c.iter()).enumerate() {
+            match (g, c) {
+                (Ok(a), Ok(b)) => {
+                    assert_eq!((a.placement, a.position, &a.new_dirs, &a.extras), (b.placement, b.position, &b.new_dirs, &b.extras), "candidate {i}");
+                    assert_eq!(a.maps, b.maps, "candidate {i}");
+                }
+                (Err(a), Err(b)) => assert_eq!(a, b, "candidate {i}"),
+                _ => panic!("candidate {i}: gpu {:?} vs cpu {:?}", g.as_ref().map(|a| a.placement), c.as_ref().map(|a| a.placement)),
+            }
+        }
+    }
+    p
+}
+
+/// Prints the parity figures; asserts no disagreement, and that the band stays below
+/// `max_band` of the decisions (strict mode sends most of its queries to f64: any undecidable
+/// event within dmax may be another solution).
+fn report(name: &str, p: &Parity, max_band: f64) {
+    let band = p.band_tie + p.band_marginal;
+    eprintln!(
+        "parity {name}: {} decisions compared, {} disagreements outside the band, {} in the band ({:.1} %: {} ties, {} marginal), max |d| error {:.2e} dmax",
+        p.compared,
+        p.disagree,
+        band,
+        100.0 * band as f64 / p.compared.max(1) as f64,
+        p.band_tie,
+        p.band_marginal,
+        p.max_d_err
+    );
+    assert!(p.compared > 1000, "{name}: too few decisions compared ({})", p.compared);
+    assert_eq!(p.disagree, 0, "{name}: GPU and CPU disagree outside the tolerance band");
+    assert!((band as f64) <= max_band * p.compared as f64, "{name}: the band swallows too many decisions");
+}
+
+#[test]
+fn parity_interpolated_bunny_early_and_late() {
+    let Some(gpu) = vulkan() else { return };
+    if real_scan("bunny.ply.gz").is_none() {
+        return;
+    }
+    let p = parity_on_bunny(gpu, Options::default(), &[20_000, 1_000]);
+    report("interpolated", &p, 0.5);
+}
+
+#[test]
+fn parity_strict_and_constant_bunny() {
+    let Some(gpu) = vulkan() else { return };
+    if real_scan("bunny.ply.gz").is_none() {
+        return;
+    }
+    let p = parity_on_bunny(gpu, Options { strict: true, ..Options::default() }, &[30_000]);
+    report("strict", &p, 1.0);
+    let gpu = vulkan().unwrap();
+    let p = parity_on_bunny(gpu, Options { normals: NormalMode::Constant, ..Options::default() }, &[30_000]);
+    report("constant", &p, 0.5);
+}
+
+/// The validator's projection: every dense vertex of the bunny against a meshoptimizer base
+/// (many unmapped vertices, flips) and against dispdec's own, on both backends: equal verdicts.
+#[test]
+fn validate_projection_on_gpu_equals_cpu() {
+    let Some(gpu) = vulkan() else { return };
+    let Some(bunny) = real_scan("bunny.ply.gz") else { return };
+    let scan = dispdec::mesh::load_dense(&bunny).unwrap();
+    let dense = dispdec::mesh::DenseData::new(&scan.positions, &scan.faces);
+    let verts: Vec<[f32; 3]> = scan.positions.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect();
+    let indices: Vec<u32> = scan.faces.iter().flatten().copied().collect();
+    let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&verts), 12, 0).unwrap();
+    let simplified = meshopt::simplify(&indices, &adapter, 400 * 3, 1.0, meshopt::SimplifyOptions::empty(), None);
+    let faces: Vec<[u32; 3]> = simplified.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+    let dir = tempdir("validate-parity");
+    let qem = dir.join("qem.obj");
+    write_obj(&qem, &scan.positions, &faces);
+    let (base, _, _) = dispdec::run::load_base_with_directions(&qem).unwrap();
+    let dmax = 0.1 * dispdec::mesh::bbox_diagonal(scan.positions.iter().copied());
+    let ev = GpuEvaluator::new(gpu, &dense).unwrap();
+    let (cv, cm) = dispdec::validate::validate_on(&dense, &base, NormalMode::Interpolated, dmax, false, false, None).unwrap();
+    let (gv, gm) = dispdec::validate::validate_on(&dense, &base, NormalMode::Interpolated, dmax, false, false, Some(&ev)).unwrap();
+    let s = ev.stats();
+    eprintln!(
+        "validate parity (bunny, {} meshoptimizer faces): {} vertices; gpu decided {} hits + {} none; band {} ties + {} marginal ({:.2} %); disagreements {}; unmapped {} / {}, flipped {} / {}",
+        base.faces.len(),
+        s.queries,
+        s.gpu_hit,
+        s.gpu_none,
+        s.band_tie,
+        s.band_marginal,
+        100.0 * s.band_fraction(),
+        s.disagreements,
+        cv.unmapped,
+        gv.unmapped,
+        cv.flipped,
+        gv.flipped
+    );
+    assert!(cv.unmapped > 0, "the quadric base leaves vertices unmapped");
+    assert_eq!(s.disagreements, 0);
+    assert_eq!(cm, gm, "per-vertex maps");
+    assert_eq!((cv.valid, cv.unmapped, cv.flipped, cv.torn), (gv.valid, gv.unmapped, gv.flipped, gv.torn));
+}
+
+/// The binary end to end on lavapipe: `--backend gpu` writes the CPU backend's bytes, and
+/// `validate --backend gpu` finds the base valid with the GPU named in its report.
+#[test]
+fn decimate_and_validate_with_backend_gpu_match_cpu() {
+    let Some(_) = vulkan() else { return };
+    let dir = tempdir("backend-gpu");
+    let scan = dir.join("scan.obj");
+    let o = run(&["sample", "--faces", "6000", "--seed", "7", "-o", scan.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(0));
+    let mut bytes = Vec::new();
+    for backend in ["cpu", "gpu"] {
+        let (b, m, r) = (dir.join(format!("{backend}.obj")), dir.join(format!("{backend}.map")), dir.join(format!("{backend}.json")));
+        let o = run(&[
+            "decimate", scan.to_str().unwrap(), "-o", b.to_str().unwrap(), "--map", m.to_str().unwrap(),
+            "--report", r.to_str().unwrap(), "--backend", backend, "-q",
+        ]);
+        assert_eq!(o.status.code(), Some(0), "{backend}: {}", String::from_utf8_lossy(&o.stderr));
+        let rep: Value = serde_json::from_slice(&std::fs::read(&r).unwrap()).unwrap();
+        assert_eq!(rep["backend"], backend);
+        if backend == "gpu" {
+            assert!(rep["adapter"].as_str().unwrap().contains("Vulkan"), "{}", rep["adapter"]);
+            let band = &rep["gpu_band"];
+            assert!(band["queries"].as_u64().unwrap() > 0);
+            assert_eq!(band["disagreements"], 0);
+            assert_eq!(rep["global"]["valid"], true);
+        }
+        bytes.push((std::fs::read(&b).unwrap(), std::fs::read(&m).unwrap()));
+    }
+    assert!(bytes[0] == bytes[1], "--backend gpu must write the same base and map as --backend cpu");
+    let j = dir.join("v.json");
+    let o = run(&["validate", scan.to_str().unwrap(), dir.join("gpu.obj").to_str().unwrap(), "--backend", "gpu", "--json", j.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let rep: Value = serde_json::from_slice(&std::fs::read(&j).unwrap()).unwrap();
+    assert!(rep["backend"].as_str().unwrap().starts_with("gpu"), "{}", rep["backend"]);
+    assert_eq!(rep["verdict"]["valid"], true);
+}
+
+/// `--backend auto` always runs (GPU or CPU) and says which in one line.
+#[test]
+fn backend_auto_says_what_it_uses() {
+    let dir = tempdir("backend-auto");
+    let scan = dir.join("scan.obj");
+    assert_eq!(run(&["sample", "--faces", "2000", "-o", scan.to_str().unwrap()]).status.code(), Some(0));
+    let o = run(&["decimate", scan.to_str().unwrap(), "-o", dir.join("b.obj").to_str().unwrap(), "--backend", "auto", "-q"]);
+    assert_eq!(o.status.code(), Some(0));
+    let err = String::from_utf8_lossy(&o.stderr);
+    let line = err.lines().find(|l| l.contains("--backend auto")).expect("a line about the backend");
+    assert!(line.contains("using the CPU") || line.contains("using the GPU"), "{line}");
+}
