@@ -27,7 +27,8 @@ struct Query {
     tri_start: u32,
     tri_count: u32,
     flags: u32,
-    pad: u32,
+    // Index in the range of the triangle to search first (the vertex's current face), or INVALID.
+    hint: u32,
 }
 
 struct Answer {
@@ -537,9 +538,16 @@ fn evaluate_candidates(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let q = queries[i];
     var s = new_search();
+    // The hinted triangle first: its hit usually is the primary, and then the bound culls
+    // nearly every other triangle before any cubic is solved.
+    if (q.hint < q.tri_count) {
+        visit_triangle(&s, q.x, q, q.tri_start + q.hint);
+    }
     let end = q.tri_start + q.tri_count;
     for (var t = q.tri_start; t < end; t++) {
-        visit_triangle(&s, q.x, q, t);
+        if (t - q.tri_start != q.hint) {
+            visit_triangle(&s, q.x, q, t);
+        }
     }
     var a = finish_search(&s, (q.flags & FLAG_STRICT) != 0u);
     if (a.tri != INVALID) {

@@ -93,7 +93,8 @@ pub struct GpuQuery {
     pub tri_start: u32,
     pub tri_count: u32,
     pub flags: u32,
-    pub pad: u32,
+    /// Index in the range of the triangle to search first, or `INVALID`.
+    pub hint: u32,
 }
 
 /// The kernel's answer for one query: a status, the chosen triangle (index into the uploaded

@@ -229,47 +229,43 @@ impl GpuEvaluator {
         }
     }
 
-    /// Builds every placement's neighbourhood and the batch's queries.
-    fn prepare(&self, state: &State, batch: &[Candidate]) -> (Vec<Vec<Prepared>>, Vec<GpuTri>, Vec<GpuQuery>) {
-        let mut prepared: Vec<Vec<Prepared>> = batch
+    /// Builds the neighbourhoods of the given (candidate, placement) pairs and their queries.
+    fn prepare(&self, state: &State, batch: &[Candidate], pairs: &[(usize, usize)]) -> (Vec<Prepared>, Vec<GpuTri>, Vec<GpuQuery>) {
+        let mut prepared: Vec<Prepared> = pairs
             .par_iter()
-            .map(|c| {
-                c.placements
-                    .iter()
-                    .map(|&p| {
-                        let mut tris = Tris::default();
-                        let built = state.build_neighbourhood(c, p, &mut tris).map(|(nd, nr)| (nd, nr, tris));
-                        Prepared { position: p, built, first_query: 0 }
-                    })
-                    .collect()
+            .map(|&(ci, pi)| {
+                let c = &batch[ci];
+                let p = c.placements[pi];
+                let mut tris = Tris::default();
+                let built = state.build_neighbourhood(c, p, &mut tris).map(|(nd, nr)| (nd, nr, tris));
+                Prepared { position: p, built, first_query: 0 }
             })
             .collect();
         let (mut gtris, mut queries) = (Vec::new(), Vec::new());
-        for (c, preps) in batch.iter().zip(prepared.iter_mut()) {
-            for prep in preps.iter_mut() {
-                prep.first_query = queries.len();
-                let Ok((_, _, tris)) = &prep.built else { continue };
-                let origin = tris.pos[0][0];
-                let tri_start = gtris.len() as u32;
-                gtris.extend((0..tris.len()).map(|t| gpu_tri(tris, t, origin)));
-                for &v in &c.dense {
-                    let pinched = state.dense.pinched[v as usize];
-                    let mut flags = 0;
-                    if !pinched {
-                        flags |= FLAG_CHECK4;
-                        if state.strict {
-                            flags |= FLAG_STRICT;
-                        }
+        for (&(ci, _), prep) in pairs.iter().zip(prepared.iter_mut()) {
+            let c = &batch[ci];
+            prep.first_query = queries.len();
+            let Ok((_, _, tris)) = &prep.built else { continue };
+            let origin = tris.pos[0][0];
+            let tri_start = gtris.len() as u32;
+            gtris.extend((0..tris.len()).map(|t| gpu_tri(tris, t, origin)));
+            for &v in &c.dense {
+                let pinched = state.dense.pinched[v as usize];
+                let mut flags = 0;
+                if !pinched {
+                    flags |= FLAG_CHECK4;
+                    if state.strict {
+                        flags |= FLAG_STRICT;
                     }
-                    queries.push(GpuQuery {
-                        x: v3(state.dense.pos[v as usize] - origin),
-                        vertex: v,
-                        tri_start,
-                        tri_count: tris.len() as u32,
-                        flags,
-                        pad: 0,
-                    });
                 }
+                queries.push(GpuQuery {
+                    x: v3(state.dense.pos[v as usize] - origin),
+                    vertex: v,
+                    tri_start,
+                    tri_count: tris.len() as u32,
+                    flags,
+                    hint: tris.index_of(state.assoc[v as usize].face).map_or(INVALID, |t| t as u32),
+                });
             }
         }
         (prepared, gtris, queries)
@@ -279,15 +275,14 @@ impl GpuEvaluator {
     /// each placement's neighbourhood: for the parity test, which compares them with
     /// [`find_primary`] on the same neighbourhoods.
     pub fn raw_answers(&self, state: &State, batch: &[Candidate]) -> Result<Vec<(usize, usize, Tris, Vec<GpuAnswer>)>, GpuError> {
-        let (prepared, gtris, queries) = self.prepare(state, batch);
+        let pairs: Vec<(usize, usize)> = batch.iter().enumerate().flat_map(|(ci, c)| (0..c.placements.len()).map(move |pi| (ci, pi))).collect();
+        let (prepared, gtris, queries) = self.prepare(state, batch, &pairs);
         let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
         let mut out = Vec::new();
-        for (ci, (c, preps)) in batch.iter().zip(prepared).enumerate() {
-            for (pi, prep) in preps.into_iter().enumerate() {
-                if let Ok((_, _, tris)) = prep.built {
-                    let a = answers[prep.first_query..prep.first_query + c.dense.len()].to_vec();
-                    out.push((ci, pi, tris, a));
-                }
+        for (&(ci, pi), prep) in pairs.iter().zip(prepared) {
+            if let Ok((_, _, tris)) = prep.built {
+                let a = answers[prep.first_query..prep.first_query + batch[ci].dense.len()].to_vec();
+                out.push((ci, pi, tris, a));
             }
         }
         Ok(out)
@@ -324,7 +319,7 @@ impl GpuEvaluator {
                 tri_start: 0,
                 tri_count: 0,
                 flags: if dense.pinched[v as usize] { 0 } else { FLAG_CHECK4 },
-                pad: 0,
+                hint: INVALID,
             })
             .collect();
         let answers = self.kernel.run(ShellEntry::Project, dmax as f32, mode_code(mode), &gtris, &nodes, &queries)?;
@@ -362,26 +357,33 @@ impl Evaluator for GpuEvaluator {
         format!("gpu: {}", self.adapter())
     }
 
+    /// Placement by placement, as the CPU tries them: one dispatch holds placement k of every
+    /// candidate still undecided, so a candidate whose first placement passes costs one.
     fn evaluate(&self, state: &State, batch: &[Candidate]) -> Result<Vec<Outcome>, GpuError> {
-        let t0 = Instant::now();
-        let (prepared, gtris, queries) = self.prepare(state, batch);
-        let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
-        let kernel_s = t0.elapsed().as_secs_f64();
-        let results: Vec<(Outcome, u64)> = batch
-            .par_iter()
-            .zip(prepared.into_par_iter())
-            .map(|(c, preps)| {
-                let (mut scratch, mut normals) = (Scratch::default(), Vec::new());
-                let mut disagreements = 0;
-                let mut first_reason = None;
-                for (pi, prep) in preps.into_iter().enumerate() {
+        let mut outcomes: Vec<Option<Outcome>> = vec![None; batch.len()];
+        let mut first_reason: Vec<Option<Reject>> = vec![None; batch.len()];
+        let rounds = batch.iter().map(|c| c.placements.len()).max().unwrap_or(0);
+        for pi in 0..rounds {
+            let pairs: Vec<(usize, usize)> =
+                (0..batch.len()).filter(|&ci| outcomes[ci].is_none() && pi < batch[ci].placements.len()).map(|ci| (ci, pi)).collect();
+            if pairs.is_empty() {
+                break;
+            }
+            let (prepared, gtris, queries) = self.prepare(state, batch, &pairs);
+            let t0 = Instant::now();
+            let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
+            let kernel_s = t0.elapsed().as_secs_f64();
+            let results: Vec<(Result<Accepted, Reject>, u64)> = pairs
+                .par_iter()
+                .zip(prepared.into_par_iter())
+                .map(|(&(ci, pi), prep)| {
+                    let c = &batch[ci];
                     let (new_dirs, n_region, tris) = match prep.built {
                         Ok(b) => b,
-                        Err(r) => {
-                            first_reason.get_or_insert(r);
-                            continue;
-                        }
+                        Err(r) => return (Err(r), 0),
                     };
+                    let (mut scratch, mut normals) = (Scratch::default(), Vec::new());
+                    let mut disagreements = 0;
                     let mine = &answers[prep.first_query..prep.first_query + c.dense.len()];
                     let solved = state.solve_region_vertices(c, &tris, |i, x, pinched| {
                         state.dense.vertex_normals(c.dense[i], &mut normals);
@@ -401,18 +403,26 @@ impl Evaluator for GpuEvaluator {
                             _ => find_primary(x, &normals, &tris, state.mode, state.dmax, check4, strict, &mut scratch),
                         }
                     });
-                    let outcome = solved.and_then(|maps| state.finish_placement(c, prep.position, new_dirs, n_region, &tris, maps, &mut scratch));
-                    match outcome {
-                        Ok(acc) => return (Ok(Accepted { placement: pi, ..acc }), disagreements),
-                        Err(r) => {
-                            first_reason.get_or_insert(r);
-                        }
+                    let r = solved
+                        .and_then(|maps| state.finish_placement(c, prep.position, new_dirs, n_region, &tris, maps, &mut scratch))
+                        .map(|acc| Accepted { placement: pi, ..acc });
+                    (r, disagreements)
+                })
+                .collect();
+            self.add_stats(&answers, results.iter().map(|r| r.1).sum(), kernel_s);
+            for (&(ci, _), (r, _)) in pairs.iter().zip(results) {
+                match r {
+                    Ok(acc) => outcomes[ci] = Some(Ok(acc)),
+                    Err(reason) => {
+                        first_reason[ci].get_or_insert(reason);
                     }
                 }
-                (Err(first_reason.unwrap_or(Reject::Link)), disagreements)
-            })
-            .collect();
-        self.add_stats(&answers, results.iter().map(|r| r.1).sum(), kernel_s);
-        Ok(results.into_iter().map(|r| r.0).collect())
+            }
+        }
+        Ok(outcomes
+            .into_iter()
+            .zip(first_reason)
+            .map(|(o, r)| o.unwrap_or(Err(r.unwrap_or(Reject::Link))))
+            .collect())
     }
 }

@@ -8,6 +8,7 @@
 //! - [`geometry`]: pure kernels (normals, shell inversion, condition (4));
 //! - [`eval`]: the [`eval::Evaluator`] trait, the CPU evaluator, primary search, flip and tear tests;
 //! - [`local`]: the local test of one candidate collapse;
+//! - [`bench`]: `dispdec bench`, CPU and GPU paths side by side, with meshoptimizer as reference;
 //! - [`bake`]: the displacement map over the atlas (PNG16 + sidecar, PFM);
 //! - [`bvh`]: a triangle BVH (distance and line queries);
 //! - [`decimate`]: queue, association, batch scheduler, commit;
@@ -23,6 +24,7 @@
 //! - [`validate`]: the global check of a base mesh against its scan, and the local re-check.
 
 pub mod bake;
+pub mod bench;
 pub mod bvh;
 pub mod decimate;
 pub mod eval;

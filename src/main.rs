@@ -29,8 +29,41 @@ enum Backend {
     Auto,
 }
 
+#[derive(Clone, Copy, ValueEnum)]
+enum BenchConfig {
+    /// The CPU evaluator on one thread.
+    Cpu1,
+    /// The CPU evaluator on every core.
+    Cpu,
+    /// The GPU evaluator (WGSL kernels).
+    Gpu,
+}
+
 #[derive(Subcommand)]
 enum Cmd {
+    /// Benchmark the CPU and GPU paths on the same inputs (medians of --runs runs), with
+    /// meshoptimizer's quadric simplifier to the same face count as the reference.
+    Bench {
+        /// JSON report.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Runs per mesh and path (the median is reported).
+        #[arg(long, default_value_t = 3)]
+        runs: usize,
+        /// Folder of the scans (default: $DISPDEC_DATA, else ../shared/data).
+        #[arg(long)]
+        data: Option<PathBuf>,
+        /// Meshes: bunny, horse, igea (268k faces), turbineblade (199k), sample1m (generated), or
+        /// paths of your own.
+        #[arg(long, value_delimiter = ',', default_value = "bunny,horse,igea,sample1m")]
+        meshes: Vec<String>,
+        /// Paths to compare.
+        #[arg(long, value_enum, value_delimiter = ',', default_value = "cpu1,cpu,gpu")]
+        configs: Vec<BenchConfig>,
+        /// Folder for the generated sample and the outputs (default: a temporary folder).
+        #[arg(long)]
+        work: Option<PathBuf>,
+    },
     /// Decimate INPUT (OBJ or PLY, optionally .gz) into a base mesh.
     Decimate {
         input: PathBuf,
@@ -323,6 +356,35 @@ fn run(cli: Cli) -> Result<i32> {
         Cmd::Render { meshes, output, size, yaw, pitch } => {
             let adapter = dispdec::run::render(&meshes, &output, dispdec::render::View { size, yaw, pitch })?;
             eprintln!("wrote {} ({} meshes, {adapter})", output.display(), meshes.len());
+            Ok(0)
+        }
+        Cmd::Bench { json, runs, data, meshes, configs, work } => {
+            if runs == 0 {
+                return Err(dispdec::Error::Usage("--runs must be at least 1".into()).into());
+            }
+            let data = data
+                .or_else(|| std::env::var_os("DISPDEC_DATA").map(PathBuf::from))
+                .unwrap_or_else(|| PathBuf::from("../shared/data"));
+            let job = dispdec::bench::BenchJob {
+                data,
+                meshes,
+                configs: configs
+                    .into_iter()
+                    .map(|c| match c {
+                        BenchConfig::Cpu1 => dispdec::bench::Config::Cpu1,
+                        BenchConfig::Cpu => dispdec::bench::Config::Cpu,
+                        BenchConfig::Gpu => dispdec::bench::Config::Gpu,
+                    })
+                    .collect(),
+                runs,
+                work: work.unwrap_or_else(|| std::env::temp_dir().join(format!("dispdec-bench-{}", std::process::id()))),
+            };
+            let report = dispdec::bench::bench(&job, |line| eprintln!("{line}"))?;
+            print!("{}", dispdec::bench::table(&report));
+            if let Some(p) = json {
+                let text = serde_json::to_string_pretty(&report)?;
+                dispdec::mesh::write_atomic(&p, text.as_bytes())?;
+            }
             Ok(0)
         }
         Cmd::Sample { output, faces, seed } => {

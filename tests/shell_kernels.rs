@@ -85,7 +85,7 @@ macro_rules! same_layout {
 fn repr_c_structs_match_their_wgsl_structs() {
     let m = module();
     same_layout!(m, GpuTri, "Tri", [p0, p1, p2, n0, n1, n2, sphere]);
-    same_layout!(m, GpuQuery, "Query", [x, vertex, tri_start, tri_count, flags, pad]);
+    same_layout!(m, GpuQuery, "Query", [x, vertex, tri_start, tri_count, flags, hint]);
     same_layout!(m, GpuAnswer, "Answer", [tri, status, d, second, bary]);
     same_layout!(m, GpuNode, "Node", [lo, a, hi, b]);
     same_layout!(m, GpuParams, "Params", [dmax, mode, query_count, node_count]);
@@ -299,4 +299,41 @@ fn backend_auto_says_what_it_uses() {
     let err = String::from_utf8_lossy(&o.stderr);
     let line = err.lines().find(|l| l.contains("--backend auto")).expect("a line about the backend");
     assert!(line.contains("using the CPU") || line.contains("using the GPU"), "{line}");
+}
+
+/// `dispdec bench` on a small generated mesh, every path, three runs: the JSON has a row per
+/// path with medians, equal faces out on every path, the adapter, and the meshoptimizer ratio.
+#[test]
+fn bench_compares_the_paths_on_the_same_input() {
+    let gpu = vulkan().is_some();
+    let dir = tempdir("bench");
+    let scan = dir.join("small.obj");
+    assert_eq!(run(&["sample", "--faces", "3000", "--seed", "2", "-o", scan.to_str().unwrap()]).status.code(), Some(0));
+    let j = dir.join("bench.json");
+    let o = run(&[
+        "bench", "--meshes", scan.to_str().unwrap(), "--runs", "3", "--configs", "cpu1,cpu,gpu", "--json", j.to_str().unwrap(),
+        "--work", dir.join("work").to_str().unwrap(),
+    ]);
+    let (out, err) = (String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    eprintln!("{out}");
+    assert!(out.contains("| mesh | faces in | path |"), "{out}");
+    let r: Value = serde_json::from_slice(&std::fs::read(&j).unwrap()).unwrap();
+    let rows = r["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), if gpu { 3 } else { 2 }, "{r}");
+    let faces: Vec<&Value> = rows.iter().map(|row| &row["faces_out"]).collect();
+    for row in rows {
+        assert_eq!(row["runs_total_s"].as_array().unwrap().len(), 3);
+        assert_eq!(row["valid"], true);
+        assert_eq!(&row["faces_out"], faces[0], "every path and run gives the same base");
+        assert!(row["median"]["total_s"].as_f64().unwrap() > 0.0);
+        assert!(row["meshopt_s"].as_f64().unwrap() > 0.0);
+        assert!(row["ratio_to_meshopt"].as_f64().unwrap() > 1.0);
+    }
+    assert_eq!(rows[0]["threads"], 1);
+    if gpu {
+        assert!(rows[2]["adapter"].as_str().unwrap().contains("Vulkan"));
+        assert!(rows[2]["band_fraction"].as_f64().is_some());
+    }
+    assert!(r["machine"].as_str().unwrap().contains("cores"));
 }

@@ -1,0 +1,310 @@
+//! `dispdec bench`: the CPU and GPU paths side by side on the same inputs — the bunny, the horse,
+//! a 200k+ face scan and a ~1M-face sample — each configuration run several times in this one
+//! process, medians reported, with a quadric-error decimator (meshoptimizer) timed to the same
+//! face count as the reference.
+
+use crate::decimate::Options;
+use crate::run::{decimate, Backend, DecimateJob, Report};
+use crate::Error;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// One configuration of the evaluator.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Config {
+    /// The CPU evaluator on one thread.
+    Cpu1,
+    /// The CPU evaluator on every core.
+    Cpu,
+    /// The GPU evaluator (WGSL kernels) on the first adapter.
+    Gpu,
+}
+
+impl Config {
+    pub fn name(self) -> &'static str {
+        match self {
+            Config::Cpu1 => "cpu, 1 thread",
+            Config::Cpu => "cpu, all threads",
+            Config::Gpu => "gpu",
+        }
+    }
+}
+
+/// What to run.
+#[derive(Clone, Debug)]
+pub struct BenchJob {
+    /// Folder of the scans (bunny.ply.gz, horse.ply.gz, igea.ply.gz).
+    pub data: PathBuf,
+    /// Meshes by name (bunny, horse, igea, turbineblade, sample1m) or path.
+    pub meshes: Vec<String>,
+    pub configs: Vec<Config>,
+    /// Runs per (mesh, configuration); the median is reported.
+    pub runs: usize,
+    /// Where the generated ~1M-face sample and the outputs go.
+    pub work: PathBuf,
+}
+
+/// The median of a non-empty list.
+pub fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let n = s.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        s[n / 2]
+    } else {
+        0.5 * (s[n / 2 - 1] + s[n / 2])
+    }
+}
+
+/// Median seconds per phase.
+#[derive(Clone, Debug, Serialize)]
+pub struct Phases {
+    pub load_s: f64,
+    pub init_s: f64,
+    pub pick_s: f64,
+    pub evaluate_s: f64,
+    pub commit_s: f64,
+    pub recheck_s: f64,
+    pub global_s: f64,
+    pub total_s: f64,
+}
+
+/// One (mesh, configuration) row.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    pub mesh: String,
+    pub faces_in: usize,
+    pub config: Config,
+    pub threads: usize,
+    pub adapter: String,
+    /// Faces out of every run (identical unless something is wrong).
+    pub faces_out: Vec<usize>,
+    /// Every run valid under the local re-check and the global check.
+    pub valid: bool,
+    pub runs_total_s: Vec<f64>,
+    pub median: Phases,
+    /// Largest peak resident memory over the runs (MB), measured per run; `null` where the OS
+    /// does not say.
+    pub peak_rss_mb: Option<f64>,
+    /// GPU rows: fraction of kernel answers that fell in the tolerance band (settled in f64).
+    pub band_fraction: Option<f64>,
+    /// meshoptimizer `simplify` to the same face count: median seconds, and this row's median
+    /// total over it.
+    pub meshopt_s: f64,
+    pub ratio_to_meshopt: f64,
+}
+
+/// The whole benchmark.
+#[derive(Clone, Debug, Serialize)]
+pub struct BenchReport {
+    pub machine: String,
+    pub cores: usize,
+    pub runs: usize,
+    pub rows: Vec<Row>,
+    /// Configurations that could not run here, and why.
+    pub skipped: Vec<String>,
+}
+
+fn machine_name() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| s.lines().find(|l| l.starts_with("model name")).and_then(|l| l.split(':').nth(1)).map(|s| s.trim().to_string()))
+        .unwrap_or_else(|| std::env::consts::ARCH.to_string());
+    format!("{cpu}, {} cores, {}", std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1), std::env::consts::OS)
+}
+
+/// Resets the peak resident set size (Linux: clear_refs 5); false where unsupported.
+fn reset_peak_rss() -> bool {
+    std::fs::write("/proc/self/clear_refs", "5").is_ok()
+}
+
+/// Peak resident set size since the last reset, in MB.
+fn peak_rss_mb() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let l = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = l.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// The input file of a mesh name (the 1M sample is generated into `work` once).
+fn mesh_path(job: &BenchJob, name: &str) -> Result<PathBuf, Error> {
+    let file = match name {
+        "bunny" => "bunny.ply.gz",
+        "horse" => "horse.ply.gz",
+        "igea" => "igea.ply.gz",
+        "turbineblade" => "turbineblade.ply.gz",
+        "sample1m" => {
+            let p = job.work.join("sample-1m.obj");
+            if !p.exists() {
+                let m = crate::sample::generate(crate::sample::SampleSpec { faces: 1_000_000, seed: 1 });
+                let text = crate::sample::to_obj(&m, "dispdec sample surface (dispdec sample --faces 1000000 --seed 1)");
+                crate::mesh::write_atomic(&p, text.as_bytes())?;
+            }
+            return Ok(p);
+        }
+        // Any other name is a mesh file of the user's.
+        other if Path::new(other).is_file() => return Ok(PathBuf::from(other)),
+        other => {
+            return Err(Error::Usage(format!(
+                "bench: {other:?} is neither a known mesh (bunny, horse, igea, turbineblade, sample1m) nor a file"
+            )))
+        }
+    };
+    let p = job.data.join(file);
+    if !p.exists() {
+        return Err(Error::Input { path: p.display().to_string(), msg: "not found (give the scans' folder with --data)".into() });
+    }
+    Ok(p)
+}
+
+/// meshoptimizer's `simplify` of `path` to `faces` faces: the median seconds of `runs` runs.
+fn meshopt_time(path: &Path, faces: usize, runs: usize) -> Result<f64, Error> {
+    let scan = crate::mesh::load_dense(path)?;
+    let verts: Vec<[f32; 3]> = scan.positions.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect();
+    let indices: Vec<u32> = scan.faces.iter().flatten().copied().collect();
+    let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&verts), 12, 0)
+        .map_err(|e| Error::Input { path: path.display().to_string(), msg: format!("meshopt: {e}") })?;
+    let mut times = Vec::new();
+    for _ in 0..runs.max(3) {
+        let t = Instant::now();
+        let out = meshopt::simplify(&indices, &adapter, faces * 3, 1.0, meshopt::SimplifyOptions::empty(), None);
+        times.push(t.elapsed().as_secs_f64());
+        std::hint::black_box(out);
+    }
+    Ok(median(&times))
+}
+
+/// Runs the benchmark; `progress` gets one line per finished run.
+pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchReport, Error> {
+    std::fs::create_dir_all(&job.work).map_err(|e| Error::Output { path: job.work.display().to_string(), msg: e.to_string() })?;
+    let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let mut rows = Vec::new();
+    let mut skipped = Vec::new();
+    let mut gpu_ok = true;
+    for name in &job.meshes {
+        let path = mesh_path(job, name)?;
+        let mut reference_faces = None;
+        for &config in &job.configs {
+            if config == Config::Gpu && !gpu_ok {
+                continue;
+            }
+            let mut reports: Vec<Report> = Vec::new();
+            let mut peak = None::<f64>;
+            for run in 0..job.runs.max(1) {
+                let out = job.work.join(format!("{name}-{config:?}.obj"));
+                let dj = DecimateJob {
+                    input: path.clone(),
+                    output: out,
+                    map: None,
+                    report: None,
+                    options: Options::default(),
+                    threads: Some(if config == Config::Cpu1 { 1 } else { 0 }),
+                    progress: false,
+                    backend: if config == Config::Gpu { Backend::Gpu } else { Backend::Cpu },
+                };
+                let measured = reset_peak_rss();
+                match decimate(&dj) {
+                    Ok(r) => {
+                        if measured {
+                            if let Some(p) = peak_rss_mb() {
+                                peak = Some(peak.map_or(p, |q: f64| q.max(p)));
+                            }
+                        }
+                        progress(&format!(
+                            "{name} ({} faces), {}, run {}/{}: {} faces in {:.2} s",
+                            r.faces_in,
+                            config.name(),
+                            run + 1,
+                            job.runs.max(1),
+                            r.faces_out,
+                            r.time.total_s
+                        ));
+                        reports.push(r);
+                    }
+                    Err(Error::Gpu(e)) => {
+                        skipped.push(format!("gpu: {e}"));
+                        gpu_ok = false;
+                        break;
+                    }
+                    Err(e) => return Err(e),
+                }
+            }
+            if reports.is_empty() {
+                continue;
+            }
+            let m = |f: fn(&Report) -> f64| median(&reports.iter().map(f).collect::<Vec<_>>());
+            let faces_out: Vec<usize> = reports.iter().map(|r| r.faces_out).collect();
+            let target = *reference_faces.get_or_insert(faces_out[0]);
+            let meshopt_s = meshopt_time(&path, target, job.runs)?;
+            let median = Phases {
+                load_s: m(|r| r.time.load_s),
+                init_s: m(|r| r.time.init_s),
+                pick_s: m(|r| r.time.pick_s),
+                evaluate_s: m(|r| r.time.evaluate_s),
+                commit_s: m(|r| r.time.commit_s),
+                recheck_s: m(|r| r.time.recheck_s),
+                global_s: m(|r| r.time.global_s),
+                total_s: m(|r| r.time.total_s),
+            };
+            rows.push(Row {
+                mesh: name.clone(),
+                faces_in: reports[0].faces_in,
+                config,
+                threads: reports[0].threads,
+                adapter: reports[0].adapter.clone(),
+                valid: reports.iter().all(|r| r.recheck.valid && r.global.valid),
+                runs_total_s: reports.iter().map(|r| r.time.total_s).collect(),
+                ratio_to_meshopt: median.total_s / meshopt_s,
+                median,
+                faces_out,
+                peak_rss_mb: peak,
+                band_fraction: reports[0].gpu_band.as_ref().map(|b| b.band_fraction()),
+                meshopt_s,
+            });
+        }
+    }
+    Ok(BenchReport { machine: machine_name(), cores, runs: job.runs.max(1), rows, skipped })
+}
+
+/// The table `dispdec bench` prints (Markdown, so that the README can show it as is).
+pub fn table(r: &BenchReport) -> String {
+    let mut s = format!("machine: {}; median of {} run(s) each\n\n", r.machine, r.runs);
+    s += "| mesh | faces in | path | faces out | total s | evaluate s | pick+commit s | checks s | peak MB | band | meshopt ms | × meshopt |\n";
+    s += "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    for row in &r.rows {
+        let m = &row.median;
+        let path = match row.config {
+            Config::Gpu => format!("gpu: {}", row.adapter.trim_start_matches("gpu: ")),
+            c => c.name().to_string(),
+        };
+        let faces: Vec<String> = row.faces_out.iter().map(|f| f.to_string()).collect();
+        let mut faces = faces.join("/");
+        if !row.valid {
+            faces += " INVALID";
+        }
+        s += &format!(
+            "| {} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {} | {:.1} | {:.0} |\n",
+            row.mesh,
+            row.faces_in,
+            path,
+            faces,
+            m.total_s,
+            m.evaluate_s,
+            m.pick_s + m.commit_s,
+            m.recheck_s + m.global_s,
+            row.peak_rss_mb.map_or("-".into(), |p| format!("{p:.0}")),
+            row.band_fraction.map_or("-".into(), |b| format!("{:.1} %", 100.0 * b)),
+            1000.0 * row.meshopt_s,
+            row.ratio_to_meshopt
+        );
+    }
+    for sk in &r.skipped {
+        s += &format!("\nnot run: {sk}\n");
+    }
+    s
+}
