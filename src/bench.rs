@@ -93,6 +93,9 @@ pub struct Row {
     pub peak_rss_mb: Option<f64>,
     /// GPU rows: fraction of kernel answers that fell in the tolerance band (settled in f64).
     pub band_fraction: Option<f64>,
+    /// GPU rows: median seconds inside the kernels (upload, dispatch, readback); the rest of
+    /// `evaluate_s` is CPU work (neighbourhoods, the band in f64, flip and tear checks).
+    pub gpu_kernel_s: Option<f64>,
     /// meshoptimizer `simplify` to the same face count: median seconds, and this row's median
     /// total over it.
     pub meshopt_s: f64,
@@ -264,6 +267,7 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
                 faces_out,
                 peak_rss_mb: peak,
                 band_fraction: reports[0].gpu_band.as_ref().map(|b| b.band_fraction()),
+                gpu_kernel_s: reports[0].gpu_band.as_ref().map(|_| m(|r| r.gpu_band.as_ref().map_or(0.0, |b| b.kernel_s))),
                 meshopt_s,
             });
         }
@@ -274,8 +278,8 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
 /// The table `dispdec bench` prints (Markdown, so that the README can show it as is).
 pub fn table(r: &BenchReport) -> String {
     let mut s = format!("machine: {}; median of {} run(s) each\n\n", r.machine, r.runs);
-    s += "| mesh | faces in | path | faces out | total s | evaluate s | pick+commit s | checks s | peak MB | band | meshopt ms | × meshopt |\n";
-    s += "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    s += "| mesh | faces in | path | faces out | total s | evaluate s (in kernels) | pick+commit s | checks s | peak MB | band | meshopt ms | × meshopt |\n";
+    s += "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n";
     for row in &r.rows {
         let m = &row.median;
         let path = match row.config {
@@ -288,13 +292,14 @@ pub fn table(r: &BenchReport) -> String {
             faces += " INVALID";
         }
         s += &format!(
-            "| {} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {} | {:.1} | {:.0} |\n",
+            "| {} | {} | {} | {} | {:.2} | {:.2}{} | {:.2} | {:.2} | {} | {} | {:.1} | {:.0} |\n",
             row.mesh,
             row.faces_in,
             path,
             faces,
             m.total_s,
             m.evaluate_s,
+            row.gpu_kernel_s.map_or(String::new(), |k| format!(" ({k:.2})")),
             m.pick_s + m.commit_s,
             m.recheck_s + m.global_s,
             row.peak_rss_mb.map_or("-".into(), |p| format!("{p:.0}")),
