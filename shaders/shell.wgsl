@@ -261,6 +261,10 @@ struct Hits {
     marginal: f32,
 }
 
+fn no_hits() -> Hits {
+    return Hits(0u, array<f32, 3>(0.0, 0.0, 0.0), array<vec3<f32>, 3>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0)), F32_INF);
+}
+
 // Classifies one candidate solution (d, raw barycentrics) as f64 would, noting undecidable ones.
 fn push_hit(hits: ptr<function, Hits>, d: f32, b: vec4<f32>, dmax: f32) {
     let ad = abs(d);
@@ -284,7 +288,7 @@ fn push_hit(hits: ptr<function, Hits>, d: f32, b: vec4<f32>, dmax: f32) {
 }
 
 fn solve_shell(x: vec3<f32>, t: Tri, dmax: f32) -> Hits {
-    var hits = Hits(0u, array<f32, 3>(0.0, 0.0, 0.0), array<vec3<f32>, 3>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0)), F32_INF);
+    var hits = no_hits();
     let c = cubic_coeffs(x, t);
     let s = dmax;
     let ct = vec4<f32>(c.x, c.y * s, c.z * s * s, c.w * s * s * s);
@@ -312,7 +316,7 @@ fn face_normal(t: Tri) -> vec3<f32> {
 }
 
 fn solve_constant(x: vec3<f32>, t: Tri, dmax: f32) -> Hits {
-    var hits = Hits(0u, array<f32, 3>(0.0, 0.0, 0.0), array<vec3<f32>, 3>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0)), F32_INF);
+    var hits = no_hits();
     let nf = face_normal(t);
     if (all(nf == vec3<f32>(0.0))) {
         return hits;

@@ -165,21 +165,34 @@ fn mesh_path(job: &BenchJob, name: &str) -> Result<PathBuf, Error> {
     Ok(p)
 }
 
-/// meshoptimizer's `simplify` of `path` to `faces` faces: the median seconds of `runs` runs.
-fn meshopt_time(path: &Path, faces: usize, runs: usize) -> Result<f64, Error> {
-    let scan = crate::mesh::load_dense(path)?;
-    let verts: Vec<[f32; 3]> = scan.positions.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect();
-    let indices: Vec<u32> = scan.faces.iter().flatten().copied().collect();
-    let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&verts), 12, 0)
-        .map_err(|e| Error::Input { path: path.display().to_string(), msg: format!("meshopt: {e}") })?;
-    let mut times = Vec::new();
-    for _ in 0..runs.max(3) {
-        let t = Instant::now();
-        let out = meshopt::simplify(&indices, &adapter, faces * 3, 1.0, meshopt::SimplifyOptions::empty(), None);
-        times.push(t.elapsed().as_secs_f64());
-        std::hint::black_box(out);
+/// A scan in meshoptimizer's layout (f32 positions, flat indices), loaded once per mesh.
+struct QuadricInput {
+    verts: Vec<[f32; 3]>,
+    indices: Vec<u32>,
+}
+
+impl QuadricInput {
+    fn load(path: &Path) -> Result<QuadricInput, Error> {
+        let scan = crate::mesh::load_dense(path)?;
+        Ok(QuadricInput {
+            verts: scan.positions.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect(),
+            indices: scan.faces.iter().flatten().copied().collect(),
+        })
     }
-    Ok(median(&times))
+
+    /// meshoptimizer's `simplify` to `faces` faces: the median seconds of `runs` runs (3 at least).
+    fn time(&self, path: &Path, faces: usize, runs: usize) -> Result<f64, Error> {
+        let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&self.verts), 12, 0)
+            .map_err(|e| Error::Input { path: path.display().to_string(), msg: format!("meshopt: {e}") })?;
+        let mut times = Vec::new();
+        for _ in 0..runs.max(3) {
+            let t = Instant::now();
+            let out = meshopt::simplify(&self.indices, &adapter, faces * 3, 1.0, meshopt::SimplifyOptions::empty(), None);
+            times.push(t.elapsed().as_secs_f64());
+            std::hint::black_box(out);
+        }
+        Ok(median(&times))
+    }
 }
 
 /// Runs the benchmark; `progress` gets one line per finished run.
@@ -191,6 +204,7 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
     let mut gpu_ok = true;
     for name in &job.meshes {
         let path = mesh_path(job, name)?;
+        let quadric = QuadricInput::load(&path)?;
         let mut reference_faces = None;
         for &config in &job.configs {
             if config == Config::Gpu && !gpu_ok {
@@ -243,7 +257,7 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
             let m = |f: fn(&Report) -> f64| median(&reports.iter().map(f).collect::<Vec<_>>());
             let faces_out: Vec<usize> = reports.iter().map(|r| r.faces_out).collect();
             let target = *reference_faces.get_or_insert(faces_out[0]);
-            let meshopt_s = meshopt_time(&path, target, job.runs)?;
+            let meshopt_s = quadric.time(&path, target, job.runs)?;
             let median = Phases {
                 load_s: m(|r| r.time.load_s),
                 init_s: m(|r| r.time.init_s),

@@ -26,14 +26,7 @@ impl Gpu {
     /// Opens the first adapter of `backends` (tests ask for `Backends::VULKAN`, which lavapipe
     /// provides on headless machines).
     pub fn new(backends: wgpu::Backends) -> Result<Gpu, GpuError> {
-        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-        desc.backends = backends;
-        let instance = wgpu::Instance::new(desc);
-        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-            power_preference: wgpu::PowerPreference::HighPerformance,
-            ..Default::default()
-        }))
-        .map_err(|e| GpuError::NoAdapter { backends: format!("{backends:?}"), reason: e.to_string() })?;
+        let adapter = Self::adapter(backends)?;
         let info = adapter.get_info();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("dispdec"),
@@ -49,15 +42,19 @@ impl Gpu {
 
     /// The adapter `new` would open, without opening a device.
     pub fn adapter_info(backends: wgpu::Backends) -> Result<wgpu::AdapterInfo, GpuError> {
+        Ok(Self::adapter(backends)?.get_info())
+    }
+
+    /// The high-performance adapter of `backends`.
+    fn adapter(backends: wgpu::Backends) -> Result<wgpu::Adapter, GpuError> {
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = backends;
         let instance = wgpu::Instance::new(desc);
-        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+        pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
             ..Default::default()
         }))
-        .map_err(|e| GpuError::NoAdapter { backends: format!("{backends:?}"), reason: e.to_string() })?;
-        Ok(adapter.get_info())
+        .map_err(|e| GpuError::NoAdapter { backends: format!("{backends:?}"), reason: e.to_string() })
     }
 
     /// "name (backend)", for messages and reports.

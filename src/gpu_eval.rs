@@ -14,6 +14,7 @@
 use crate::bvh::Bvh;
 use crate::decimate::{Candidate, State};
 use crate::eval::{best_on_triangle, find_primary, Accepted, Evaluator, Found, Map, NormalMode, Outcome, Reject, Scratch, Tris};
+use crate::geometry::ShellHit;
 use crate::gpu::{Gpu, GpuAnswer, GpuError, GpuNode, GpuQuery, GpuTri, ShellEntry, ShellKernel, WORKGROUP_SIZE};
 use crate::mesh::DenseData;
 use crate::topology::INVALID;
@@ -189,6 +190,35 @@ fn mode_code(mode: NormalMode) -> u32 {
     }
 }
 
+/// The f64 decision for one kernel answer over `tris`: outside the band, the GPU's triangle
+/// redone in f64; in the band (or for an answer out of range), `full`, the whole f64 search.
+/// A GPU hit whose triangle has no f64 solution is a disagreement: counted, then `full`.
+#[allow(clippy::too_many_arguments)]
+fn settle(
+    a: &GpuAnswer,
+    x: DVec3,
+    normals: &[DVec3],
+    tris: &Tris,
+    mode: NormalMode,
+    dmax: f64,
+    check4: bool,
+    disagreements: &mut u64,
+    full: impl FnOnce() -> Found,
+) -> Found {
+    match a.status {
+        STATUS_HIT if (a.tri as usize) < tris.len() => match best_on_triangle(x, normals, tris, a.tri as usize, mode, dmax, check4) {
+            Some(h) => Found::Hit(a.tri as usize, h),
+            None => {
+                *disagreements += 1;
+                full()
+            }
+        },
+        STATUS_NONE => Found::None,
+        STATUS_AMBIGUOUS => Found::Ambiguous,
+        _ => full(),
+    }
+}
+
 /// The GPU evaluator: the shell kernels on one device, for one dense mesh.
 pub struct GpuEvaluator {
     kernel: ShellKernel,
@@ -301,6 +331,7 @@ impl GpuEvaluator {
             let t = base.faces[f as usize];
             all.push(f, t, t.map(|v| base.positions[v as usize]), t.map(|v| base.directions[v as usize]));
         }
+        all.finish();
         let gtris: Vec<GpuTri> = (0..all.len()).map(|t| gpu_tri(&all, t, origin)).collect();
         let nodes: Vec<GpuNode> = bvh
             .nodes()
@@ -333,16 +364,16 @@ impl GpuEvaluator {
                     dense.vertex_normals(v as u32, normals);
                     let x = dense.pos[v];
                     let check4 = !dense.pinched[v];
-                    let global = |normals: &[DVec3], scratch: &mut Scratch, near: &mut Vec<(f64, u32)>, tris: &mut Tris| {
-                        crate::validate::primary_global(base, bvh, x, normals, mode, dmax, check4, scratch, near, tris)
-                    };
-                    match a.status {
-                        STATUS_HIT if (a.tri as usize) < all.len() => match best_on_triangle(x, normals, &all, a.tri as usize, mode, dmax, check4) {
-                            Some(h) => (Some(Map { face: all.ids[a.tri as usize], bary: h.bary, d: h.d }), 0),
-                            None => (global(normals, scratch, near, tris), 1),
-                        },
-                        STATUS_NONE => (None, 0),
-                        _ => (global(normals, scratch, near, tris), 0),
+                    let mut dis = 0;
+                    let found = settle(a, x, normals, &all, mode, dmax, check4, &mut dis, || {
+                        match crate::validate::primary_global(base, bvh, x, normals, mode, dmax, check4, scratch, near, tris) {
+                            Some(m) => all.index_of(m.face).map_or(Found::None, |t| Found::Hit(t, ShellHit { d: m.d, bary: m.bary })),
+                            None => Found::None,
+                        }
+                    });
+                    match found {
+                        Found::Hit(t, h) => (Some(Map { face: all.ids[t], bary: h.bary, d: h.d }), dis),
+                        _ => (None, dis),
                     }
                 },
             )
@@ -388,20 +419,9 @@ impl Evaluator for GpuEvaluator {
                     let solved = state.solve_region_vertices(c, &tris, |i, x, pinched| {
                         state.dense.vertex_normals(c.dense[i], &mut normals);
                         let (check4, strict) = (!pinched, state.strict && !pinched);
-                        let a = &mine[i];
-                        match a.status {
-                            STATUS_HIT if (a.tri as usize) < tris.len() => match best_on_triangle(x, &normals, &tris, a.tri as usize, state.mode, state.dmax, check4) {
-                                Some(h) => Found::Hit(a.tri as usize, h),
-                                None => {
-                                    disagreements += 1;
-                                    find_primary(x, &normals, &tris, state.mode, state.dmax, check4, strict, &mut scratch)
-                                }
-                            },
-                            STATUS_NONE => Found::None,
-                            STATUS_AMBIGUOUS => Found::Ambiguous,
-                            // The band (and any answer out of range): f64 decides.
-                            _ => find_primary(x, &normals, &tris, state.mode, state.dmax, check4, strict, &mut scratch),
-                        }
+                        settle(&mine[i], x, &normals, &tris, state.mode, state.dmax, check4, &mut disagreements, || {
+                            find_primary(x, &normals, &tris, state.mode, state.dmax, check4, strict, &mut scratch)
+                        })
                     });
                     let r = solved
                         .and_then(|maps| state.finish_placement(c, prep.position, new_dirs, n_region, &tris, maps, &mut scratch))
