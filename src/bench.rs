@@ -223,6 +223,8 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
                     threads: Some(if config == Config::Cpu1 { 1 } else { 0 }),
                     progress: false,
                     backend: if config == Config::Gpu { Backend::Gpu } else { Backend::Cpu },
+                    preparation: Default::default(),
+                    repaired: None,
                 };
                 let measured = reset_peak_rss();
                 match decimate(&dj) {

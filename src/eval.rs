@@ -27,7 +27,7 @@ pub const MAX_BISECT_DEPTH: u32 = 6;
 pub const SAME_SOLUTION_REL: f64 = 1e-7;
 
 /// The directions used on the base mesh.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum NormalMode {
     /// `N(X) = a·N1 + b·N2 + c·N3` (the paper's interpolated normals).

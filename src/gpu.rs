@@ -40,9 +40,24 @@ impl Gpu {
         Ok(Gpu { device, queue, info })
     }
 
-    /// The adapter `new` would open, without opening a device.
-    pub fn adapter_info(backends: wgpu::Backends) -> Result<wgpu::AdapterInfo, GpuError> {
-        Ok(Self::adapter(backends)?.get_info())
+    /// The first hardware adapter of `backends` (discrete, integrated or virtual GPU), or
+    /// `None` when there are only software ones; nothing is opened. This is all `--backend auto`
+    /// needs to know.
+    pub fn hardware_adapter_info(backends: wgpu::Backends) -> Result<Option<wgpu::AdapterInfo>, GpuError> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.backends = backends;
+        let instance = wgpu::Instance::new(desc);
+        let adapters = pollster::block_on(instance.enumerate_adapters(backends));
+        if adapters.is_empty() {
+            return Err(GpuError::NoAdapter { backends: format!("{backends:?}"), reason: "no adapter found".into() });
+        }
+        let rank = |t: wgpu::DeviceType| match t {
+            wgpu::DeviceType::DiscreteGpu => 0,
+            wgpu::DeviceType::IntegratedGpu => 1,
+            wgpu::DeviceType::VirtualGpu => 2,
+            _ => 3,
+        };
+        Ok(adapters.iter().map(|a| a.get_info()).filter(|i| rank(i.device_type) < 3).min_by_key(|i| rank(i.device_type)))
     }
 
     /// The high-performance adapter of `backends`.

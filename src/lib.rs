@@ -2,7 +2,8 @@
 //! checked.
 //!
 //! Modules, one concern each:
-//! - [`mesh`]: mesh types, OBJ/PLY input, input checks, OBJ output;
+//! - [`mesh`]: mesh types, OBJ/PLY input, welding and `--repair` ([`mesh::repair`]), input
+//!   checks, OBJ output;
 //! - [`topology`]: half-edges on flat `u32` arrays, link condition, edge collapse;
 //! - [`fold`]: the fold image (coverage of the base by the scan, per texel);
 //! - [`geometry`]: pure kernels (normals, shell inversion, condition (4));
@@ -21,6 +22,8 @@
 //! - [`render`]: headless wgpu render of meshes side by side;
 //! - [`run`]: the library side of the `decimate` command (options in, files and report out);
 //! - [`sample`]: the generator of the scan-like sample meshes in `data/`;
+//! - [`settings`]: the settings a base records (BASE.obj, BASE.map) and their resolution
+//!   against flags;
 //! - [`validate`]: the global check of a base mesh against its scan, and the local re-check.
 
 pub mod bake;
@@ -41,6 +44,7 @@ pub mod reconstruct;
 pub mod render;
 pub mod run;
 pub mod sample;
+pub mod settings;
 pub mod topology;
 pub mod validate;
 

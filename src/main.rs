@@ -14,6 +14,52 @@ use std::path::PathBuf;
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
+    /// Also print what the GPU probe and the Vulkan loader say, and which backend `auto` chose.
+    #[arg(long, global = true)]
+    verbose: bool,
+    /// Print nothing but errors (no progress bar, no summary, no warnings).
+    #[arg(long, short, global = true)]
+    quiet: bool,
+}
+
+/// How the scan is prepared before it is checked: welding (on by default) and `--repair`.
+#[derive(clap::Args, Clone, Copy, Debug)]
+struct PrepArgs {
+    /// Keep exactly coincident vertices apart (by default they are welded into one).
+    #[arg(long)]
+    no_weld: bool,
+    /// Clean up what raw scans carry, counted in the report: drop degenerate and duplicate
+    /// faces, remove the fewest faces that make every edge manifold, wind each component
+    /// consistently, split non-manifold vertices into their fans.
+    #[arg(long)]
+    repair: bool,
+    /// With --repair: drop components of fewer faces than this (default: keep them all).
+    #[arg(long, requires = "repair")]
+    min_component: Option<usize>,
+}
+
+impl PrepArgs {
+    fn preparation(&self) -> dispdec::mesh::repair::Preparation {
+        dispdec::mesh::repair::Preparation { weld: !self.no_weld, repair: self.repair, min_component: self.min_component.unwrap_or(0) }
+    }
+}
+
+fn flags(prep: &PrepArgs, normals: Option<Normals>, dmax: Option<f64>, strict: bool) -> dispdec::settings::Flags {
+    dispdec::settings::Flags {
+        normals: normals.map(mode_of),
+        dmax,
+        strict,
+        no_weld: prep.no_weld,
+        repair: prep.repair,
+        min_component: prep.min_component,
+    }
+}
+
+fn mode_of(n: Normals) -> NormalMode {
+    match n {
+        Normals::Interpolated => NormalMode::Interpolated,
+        Normals::Constant => NormalMode::Constant,
+    }
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -100,9 +146,12 @@ enum Cmd {
         /// Candidates evaluated per round (1 = the paper's serial algorithm).
         #[arg(long, default_value_t = 16)]
         batch: usize,
-        /// No progress bar.
-        #[arg(long, short)]
-        quiet: bool,
+        #[command(flatten)]
+        prep: PrepArgs,
+        /// Write the scan as decimated (welded, repaired) to this OBJ (.obj or .obj.gz), so that
+        /// any validator can judge the base against exactly that mesh.
+        #[arg(long)]
+        repaired: Option<PathBuf>,
     },
     /// Judge BASE against HIGH from scratch: can BASE carry HIGH as a displacement map?
     /// Exit 0 when valid, 1 when not, 2 on bad input.
@@ -118,14 +167,19 @@ enum Cmd {
         /// Atlas size in texels.
         #[arg(long, default_value_t = 1024)]
         resolution: u32,
-        /// Largest |d| (default: 0.1 x the bounding-box diagonal of HIGH).
+        /// Largest |d| (default: the dmax BASE was made with, else 0.1 x the bounding-box
+        /// diagonal of HIGH).
         #[arg(long)]
         dmax: Option<f64>,
-        /// The paper's uniqueness rule: an ambiguous vertex makes BASE invalid.
+        /// The paper's uniqueness rule: an ambiguous vertex makes BASE invalid (default: on when
+        /// BASE was made with --strict).
         #[arg(long)]
         strict: bool,
-        #[arg(long, value_enum, default_value = "interpolated")]
-        normals: Normals,
+        /// Normal mode (default: the one BASE was made with, else interpolated).
+        #[arg(long, value_enum)]
+        normals: Option<Normals>,
+        #[command(flatten)]
+        prep: PrepArgs,
         /// Where the projection runs: cpu, gpu, or auto (as for decimate).
         #[arg(long, value_enum, default_value = "auto")]
         backend: Backend,
@@ -146,9 +200,15 @@ enum Cmd {
         /// Atlas size in texels.
         #[arg(long, default_value_t = 2048)]
         resolution: u32,
-        /// Largest |d| searched (default: 0.1 x the bounding-box diagonal of HIGH).
+        /// Largest |d| searched (default: the dmax BASE was made with, else 0.1 x the
+        /// bounding-box diagonal of HIGH).
         #[arg(long)]
         dmax: Option<f64>,
+        /// Normal mode (default: the one BASE was made with, else interpolated).
+        #[arg(long, value_enum)]
+        normals: Option<Normals>,
+        #[command(flatten)]
+        prep: PrepArgs,
     },
     /// Rebuild the scan: subdivide BASE --levels times and displace by DISP.
     Reconstruct {
@@ -164,6 +224,9 @@ enum Cmd {
         /// With --compare: a PNG chart of the errors against level.
         #[arg(long)]
         plot: Option<PathBuf>,
+        /// Normal mode (default: the one BASE was made with, else interpolated).
+        #[arg(long, value_enum)]
+        normals: Option<Normals>,
     },
     /// Render meshes side by side (headless wgpu; lavapipe works) into a PNG.
     Render {
@@ -194,10 +257,17 @@ enum Cmd {
 
 fn main() {
     let cli = Cli::parse();
+    if !cli.verbose && std::env::var_os("NODEVICE_SELECT").is_none() {
+        // Mesa's device-select Vulkan layer prints an XDG_RUNTIME_DIR line on every adapter
+        // probe of a headless machine; it chooses nothing dispdec needs. Set before any thread
+        // or Vulkan instance exists.
+        std::env::set_var("NODEVICE_SELECT", "1");
+    }
     match run(cli) {
         Ok(code) => std::process::exit(code),
         Err(e) => {
-            let code = e.downcast_ref::<dispdec::Error>().map(|e| e.exit_code()).unwrap_or(1);
+            // Only "the check failed" is 1 (SPEC §6); every other failure is 2.
+            let code = e.downcast_ref::<dispdec::Error>().map(|e| e.exit_code()).unwrap_or(2);
             eprintln!("dispdec: error: {e}");
             std::process::exit(code);
         }
@@ -212,7 +282,33 @@ fn backend_of(backend: Backend) -> dispdec::run::Backend {
     }
 }
 
+/// What goes to stderr besides errors: the summary and warnings unless `--quiet`, the
+/// backend note only with `--verbose`.
+struct Say {
+    quiet: bool,
+    verbose: bool,
+}
+
+impl Say {
+    fn line(&self, s: &str) {
+        if !self.quiet {
+            eprintln!("{s}");
+        }
+    }
+    fn warnings(&self, w: &[String]) {
+        for s in w {
+            self.line(&format!("dispdec: warning: {s}"));
+        }
+    }
+    fn note(&self, note: &Option<String>) {
+        if let (true, Some(n)) = (self.verbose && !self.quiet, note) {
+            eprintln!("dispdec: {n}");
+        }
+    }
+}
+
 fn run(cli: Cli) -> Result<i32> {
+    let say = Say { quiet: cli.quiet, verbose: cli.verbose };
     match cli.cmd {
         Cmd::Decimate {
             input,
@@ -227,7 +323,8 @@ fn run(cli: Cli) -> Result<i32> {
             backend,
             threads,
             batch,
-            quiet,
+            prep,
+            repaired,
         } => {
             let job = DecimateJob {
                 backend: backend_of(backend),
@@ -236,10 +333,7 @@ fn run(cli: Cli) -> Result<i32> {
                 map,
                 report,
                 options: Options {
-                    normals: match normals {
-                        Normals::Interpolated => NormalMode::Interpolated,
-                        Normals::Constant => NormalMode::Constant,
-                    },
+                    normals: mode_of(normals),
                     target_faces: target_faces.unwrap_or(0),
                     max_valence,
                     dmax,
@@ -247,15 +341,38 @@ fn run(cli: Cli) -> Result<i32> {
                     batch,
                 },
                 threads,
-                progress: !quiet && std::io::stderr().is_terminal(),
+                progress: !say.quiet && std::io::stderr().is_terminal(),
+                preparation: prep.preparation(),
+                repaired,
             };
             let r = decimate(&job)?;
-            eprintln!(
-                "{}: {} -> {} faces ({:.2} % decimated) in {:.1} s; local re-check: {} (unmapped {}, flipped {}, torn {}, pinched {}); global check: {}; max |d| {:.4} of dmax {:.4}",
+            say.warnings(&r.warnings);
+            say.note(&r.backend_note);
+            let c = &r.input_cleanup;
+            if c.repaired {
+                say.line(&format!(
+                    "{}: repaired: {} degenerate and {} duplicate faces dropped, {} faces removed at {} non-manifold edges, {} faces re-wound, {} non-manifold vertices split ({} copies), {} of {} components dropped ({} faces)",
+                    r.input,
+                    c.degenerate_faces,
+                    c.duplicate_faces,
+                    c.non_manifold_edge_faces_removed,
+                    c.non_manifold_edges,
+                    c.flipped_faces,
+                    c.non_manifold_vertices,
+                    c.vertex_copies,
+                    c.components_dropped,
+                    c.components + c.components_dropped,
+                    c.component_faces_dropped
+                ));
+            }
+            say.line(&format!(
+                "{}: {} -> {} faces ({:.2} % decimated{}{}) in {:.1} s; local re-check: {} (unmapped {}, flipped {}, torn {}, pinched {}); global check: {}; max |d| {:.4} of dmax {:.4}",
                 r.input,
                 r.faces_in,
                 r.faces_out,
                 r.percent_decimated,
+                if c.welded_vertices > 0 { format!(", {} vertices welded", c.welded_vertices) } else { String::new() },
+                if c.components > 1 { format!(", {} components", c.components) } else { String::new() },
                 r.time.total_s,
                 if r.recheck.valid { "carries the scan" } else { "FAILED" },
                 r.recheck.unmapped,
@@ -269,14 +386,14 @@ fn run(cli: Cli) -> Result<i32> {
                 },
                 r.max_abs_d,
                 r.dmax
-            );
+            ));
             if !(r.recheck.valid && r.global.valid) {
                 eprintln!("dispdec: the final check of the guarantee failed; outputs are written, see the report");
                 return Ok(1);
             }
             Ok(0)
         }
-        Cmd::Validate { high, base, json, fold_image, resolution, dmax, strict, normals, backend, threads } => {
+        Cmd::Validate { high, base, json, fold_image, resolution, dmax, strict, normals, prep, backend, threads } => {
             let job = dispdec::run::ValidateJob {
                 backend: backend_of(backend),
                 high,
@@ -284,23 +401,14 @@ fn run(cli: Cli) -> Result<i32> {
                 json,
                 fold_image,
                 resolution,
-                dmax,
-                strict,
-                normals: match normals {
-                    Normals::Interpolated => NormalMode::Interpolated,
-                    Normals::Constant => NormalMode::Constant,
-                },
+                flags: flags(&prep, normals, dmax, strict),
                 threads,
             };
             let r = dispdec::run::validate(&job)?;
             let v = &r.verdict;
-            if let Some(why) = &r.non_manifold {
-                eprintln!("{}: not a manifold ({why}); judged all the same", r.base);
-            }
-            if r.directions == "computed" {
-                eprintln!("{}: no vn per vertex; using computed directions (area-weighted, README rule)", r.base);
-            }
-            eprintln!(
+            say.warnings(&r.warnings);
+            say.note(&r.backend_note);
+            say.line(&format!(
                 "{} against {}: {} ({} dense vertices: {} mapped, {} unmapped, {} pinched, {} ambiguous, {} far hits; {} dense faces: {} flipped, {} torn); max |d| {:.4}, RMS d {:.4}, dmax {:.4}; coverage per base face {:.3}..{:.3}, {} fold and {} hole texels; {:.2} s",
                 r.base,
                 r.high,
@@ -322,40 +430,52 @@ fn run(cli: Cli) -> Result<i32> {
                 r.coverage.folded_texels,
                 r.coverage.hole_texels,
                 r.time_s
-            );
+            ));
             for f in r.first_failures.iter().take(10) {
-                eprintln!("  {} {} at ({:.5}, {:.5}, {:.5})", f.kind, f.index, f.position[0], f.position[1], f.position[2]);
+                say.line(&format!("  {} {} at ({:.5}, {:.5}, {:.5})", f.kind, f.index, f.position[0], f.position[1], f.position[2]));
             }
             Ok(if v.valid { 0 } else { 1 })
         }
-        Cmd::Bake { high, base, map, output, resolution, dmax } => {
-            let (defined, total, secs, agree) = dispdec::run::bake(&high, &base, map.as_deref(), &output, resolution, dmax)?;
-            eprintln!("wrote {}: {defined} of {total} texels carry d ({:.1} s)", output.display(), secs);
-            if let Some(a) = agree {
-                eprintln!(
+        Cmd::Bake { high, base, map, output, resolution, dmax, normals, prep } => {
+            let job = dispdec::run::BakeJob { high, base, map, output, resolution, flags: flags(&prep, normals, dmax, false) };
+            let r = dispdec::run::bake(&job)?;
+            say.warnings(&r.warnings);
+            say.line(&format!(
+                "wrote {}: {} of {} texels carry d ({} normals, dmax {:.4}; {:.1} s)",
+                job.output.display(),
+                r.defined,
+                r.texels,
+                if r.normals == NormalMode::Constant { "constant" } else { "interpolated" },
+                r.dmax,
+                r.seconds
+            ));
+            if let Some(a) = r.agreement {
+                say.line(&format!(
                     "against the map's {} vertices: |d difference| RMS {:.3e}, max {:.3e}; {} where the map has no d",
                     a.vertices, a.rms, a.max, a.missing
-                );
+                ));
             }
             Ok(0)
         }
-        Cmd::Reconstruct { base, disp, levels, output, compare, plot } => {
-            let table = dispdec::run::reconstruct(&base, &disp, levels, &output, compare.as_deref(), plot.as_deref())?;
+        Cmd::Reconstruct { base, disp, levels, output, compare, plot, normals } => {
+            let (table, warnings) =
+                dispdec::run::reconstruct(&base, &disp, levels, &output, compare.as_deref(), plot.as_deref(), normals.map(mode_of))?;
+            say.warnings(&warnings);
             if !table.is_empty() {
-                eprintln!("level  faces      RMS->scan  Hausdorff->scan  RMS<-scan  Hausdorff<-scan  (fractions of the scan's bbox diagonal)");
+                say.line("level  faces      RMS->scan  Hausdorff->scan  RMS<-scan  Hausdorff<-scan  (fractions of the scan's bbox diagonal)");
                 for d in &table {
-                    eprintln!(
+                    say.line(&format!(
                         "{:>5} {:>8}  {:>10.6}  {:>15.6}  {:>9.6}  {:>15.6}",
                         d.level, d.faces, d.rms_to_scan, d.hausdorff_to_scan, d.rms_from_scan, d.hausdorff_from_scan
-                    );
+                    ));
                 }
             }
-            eprintln!("wrote {}", output.display());
+            say.line(&format!("wrote {}", output.display()));
             Ok(0)
         }
         Cmd::Render { meshes, output, size, yaw, pitch } => {
             let adapter = dispdec::run::render(&meshes, &output, dispdec::render::View { size, yaw, pitch })?;
-            eprintln!("wrote {} ({} meshes, {adapter})", output.display(), meshes.len());
+            say.line(&format!("wrote {} ({} meshes, {adapter})", output.display(), meshes.len()));
             Ok(0)
         }
         Cmd::Bench { json, runs, data, meshes, configs, work } => {
@@ -379,7 +499,7 @@ fn run(cli: Cli) -> Result<i32> {
                 runs,
                 work: work.unwrap_or_else(|| std::env::temp_dir().join(format!("dispdec-bench-{}", std::process::id()))),
             };
-            let report = dispdec::bench::bench(&job, |line| eprintln!("{line}"))?;
+            let report = dispdec::bench::bench(&job, |line| say.line(line))?;
             print!("{}", dispdec::bench::table(&report));
             if let Some(p) = json {
                 let text = serde_json::to_string_pretty(&report)?;
@@ -396,16 +516,9 @@ fn run(cli: Cli) -> Result<i32> {
                 &m,
                 &format!("dispdec sample surface: {} faces, seed {seed} (dispdec sample --faces {faces} --seed {seed})", m.faces.len()),
             );
-            let bytes = if output.to_string_lossy().ends_with(".gz") {
-                use std::io::Write;
-                let mut enc = flate2::GzBuilder::new().write(Vec::new(), flate2::Compression::best());
-                enc.write_all(text.as_bytes())?;
-                enc.finish()?
-            } else {
-                text.into_bytes()
-            };
+            let bytes = dispdec::mesh::maybe_gzip(&output, text.into_bytes());
             dispdec::mesh::write_atomic(&output, &bytes)?;
-            eprintln!("wrote {} ({} faces)", output.display(), m.faces.len());
+            say.line(&format!("wrote {} ({} faces)", output.display(), m.faces.len()));
             Ok(0)
         }
     }

@@ -7,7 +7,8 @@
 
 use crate::bake::DispMap;
 use crate::bvh::Bvh;
-use crate::geometry::interpolate_direction;
+use crate::eval::NormalMode;
+use crate::geometry::{face_normal, interpolate_direction};
 use crate::validate::Base;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -29,8 +30,10 @@ enum Key {
     Inner(u32, u32, u32),
 }
 
-/// Subdivides `base` `level` times and displaces by `map` (level 0: the base mesh itself).
-pub fn reconstruct(base: &Base, map: &DispMap, level: u32) -> Rebuilt {
+/// Subdivides `base` `level` times and displaces by `map` (level 0: the base mesh itself). In
+/// constant-normal mode each face is displaced along its own normal, so faces share no vertex
+/// (the direction field jumps at every base edge: the paper's Fig. 3b, cracks included).
+pub fn reconstruct(base: &Base, map: &DispMap, level: u32, mode: NormalMode) -> Rebuilt {
     let n = 1u32 << level;
     let mut index: HashMap<Key, u32> = HashMap::new();
     let mut positions = Vec::new();
@@ -44,6 +47,7 @@ pub fn reconstruct(base: &Base, map: &DispMap, level: u32) -> Rebuilt {
             let c = [(k, t[0]), (i, t[1]), (j, t[2])];
             let on: Vec<(u32, u32)> = c.iter().copied().filter(|&(w, _)| w > 0).collect();
             match on.len() {
+                _ if mode == NormalMode::Constant => Key::Inner(fi, i, j),
                 1 => Key::Corner(on[0].1),
                 2 => {
                     let ((wa, a), (_, b)) = (on[0], on[1]);
@@ -65,7 +69,11 @@ pub fn reconstruct(base: &Base, map: &DispMap, level: u32) -> Rebuilt {
                 let dir = t.map(|v| base.directions[v as usize]);
                 let x = interpolate_direction(&p, &bary);
                 let d = if level == 0 { Some(0.0) } else { map.sample(fi, bary[1], bary[2]) };
-                positions.push(x + d.unwrap_or(0.0) * interpolate_direction(&dir, &bary));
+                let n_x = match mode {
+                    NormalMode::Interpolated => interpolate_direction(&dir, &bary),
+                    NormalMode::Constant => face_normal(p[0], p[1], p[2]),
+                };
+                positions.push(x + d.unwrap_or(0.0) * n_x);
                 missing.push(d.is_none());
                 (positions.len() - 1) as u32
             })
@@ -167,10 +175,10 @@ mod tests {
         };
         let atlas = Atlas::new(2, 64);
         let map = DispMap { atlas, d: vec![0.5; (atlas.size * atlas.size) as usize], jump: f64::INFINITY };
-        let r0 = reconstruct(&base, &map, 0);
+        let r0 = reconstruct(&base, &map, 0, NormalMode::Interpolated);
         assert_eq!(r0.positions, base.positions);
         assert_eq!(r0.faces, base.faces);
-        let r2 = reconstruct(&base, &map, 2);
+        let r2 = reconstruct(&base, &map, 2, NormalMode::Interpolated);
         assert_eq!(r2.faces.len(), 2 * 16);
         // (5·6/2) grid points per face, the 5 points of the shared edge counted once.
         assert_eq!(r2.positions.len(), 2 * 15 - 5);

@@ -6,7 +6,9 @@ use crate::validate::Recheck;
 use crate::eval::{CpuEvaluator, Evaluator, NormalMode};
 use crate::gpu_eval::{BandStats, GpuEvaluator};
 use crate::mapfile::{MapFile, Record, STATUS_MAPPED, STATUS_PINCHED, STATUS_UNREFERENCED};
+use crate::mesh::repair::{Cleanup, Preparation};
 use crate::mesh::{self, write_atomic};
+use crate::settings::{Flags, Settings};
 use crate::Error;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -24,6 +26,10 @@ pub struct DecimateJob {
     /// Show a progress bar (only drawn when stderr is a terminal).
     pub progress: bool,
     pub backend: Backend,
+    /// Welding and repair of the scan before it is checked.
+    pub preparation: Preparation,
+    /// `--repaired FILE`: the scan as decimated (welded, repaired), as OBJ.
+    pub repaired: Option<PathBuf>,
 }
 
 /// Where batches are evaluated (`--backend`).
@@ -36,38 +42,28 @@ pub enum Backend {
     Auto,
 }
 
-/// Opens the GPU evaluator the backend asks for (`None`: the CPU). `auto` takes a hardware
-/// adapter only: on a software one (lavapipe, whose "GPU" is these same CPU cores) the CPU
-/// evaluator is faster, so it says so and uses the CPU; `--backend gpu` forces any adapter.
-pub fn open_backend(backend: Backend, dense: &crate::mesh::DenseData) -> Result<Option<GpuEvaluator>, Error> {
+/// Opens the GPU evaluator the backend asks for (`None`: the CPU), with a note saying what
+/// `auto` chose and why (the reports carry it; the command prints it only with `--verbose`).
+/// `auto` takes a hardware adapter only: on a software one (lavapipe, whose "GPU" is these same
+/// CPU cores) the CPU evaluator is faster; `--backend gpu` forces any adapter.
+pub fn open_backend(backend: Backend, dense: &crate::mesh::DenseData) -> Result<(Option<GpuEvaluator>, Option<String>), Error> {
     let open = || -> Result<GpuEvaluator, crate::gpu::GpuError> {
         let gpu = crate::gpu::Gpu::new(wgpu::Backends::PRIMARY)?;
         GpuEvaluator::new(gpu, dense)
     };
+    let cpu = |why: String| Ok((None, Some(format!("--backend auto: using the CPU: {why}"))));
     match backend {
-        Backend::Cpu => Ok(None),
-        Backend::Gpu => Ok(Some(open()?)),
-        Backend::Auto => match crate::gpu::Gpu::adapter_info(wgpu::Backends::PRIMARY) {
-            Err(e) => {
-                eprintln!("dispdec: --backend auto: using the CPU: {e}");
-                Ok(None)
-            }
-            Ok(info) if info.device_type == wgpu::DeviceType::Cpu => {
-                eprintln!(
-                    "dispdec: --backend auto: using the CPU: the only adapter, {} ({:?}), is software rendering on these same cores (--backend gpu forces it)",
-                    info.name, info.backend
-                );
-                Ok(None)
-            }
-            Ok(_) => match open() {
+        Backend::Cpu => Ok((None, None)),
+        Backend::Gpu => Ok((Some(open()?), None)),
+        Backend::Auto => match crate::gpu::Gpu::hardware_adapter_info(wgpu::Backends::PRIMARY) {
+            Err(e) => cpu(e.to_string()),
+            Ok(None) => cpu("no hardware adapter; software adapters (lavapipe) run on these same cores and are slower than the CPU evaluator (--backend gpu forces one)".into()),
+            Ok(Some(_)) => match open() {
                 Ok(g) => {
-                    eprintln!("dispdec: --backend auto: using the GPU {}", g.adapter());
-                    Ok(Some(g))
+                    let note = format!("--backend auto: using the GPU {}", g.adapter());
+                    Ok((Some(g), Some(note)))
                 }
-                Err(e) => {
-                    eprintln!("dispdec: --backend auto: using the CPU: {e}");
-                    Ok(None)
-                }
+                Err(e) => cpu(e.to_string()),
             },
         },
     }
@@ -125,9 +121,19 @@ pub struct Report {
     pub unmapped_at_start: usize,
     pub backend: String,
     pub adapter: String,
+    /// What `--backend auto` chose and why (`null` for cpu and gpu).
+    pub backend_note: Option<String>,
     /// GPU backend: how the kernels' answers fell (decided on the GPU, or in the tolerance
     /// band and decided in f64); `null` on the CPU.
     pub gpu_band: Option<BandStats>,
+    /// The settings recorded in BASE.obj and BASE.map.
+    pub settings: Settings,
+    /// What welding and `--repair` changed, and the components decimated.
+    pub input_cleanup: Cleanup,
+    /// Faces of the input file (triangulated), before welding and repair.
+    pub input_faces: usize,
+    /// Warnings about the input (what readers skipped).
+    pub warnings: Vec<String>,
     pub collapses: Stats,
     pub recheck: RecheckSummary,
     /// The global check (every dense vertex against the whole base mesh).
@@ -157,11 +163,11 @@ pub fn decimate(job: &DecimateJob) -> Result<Report, Error> {
 
 fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
     let t_start = Instant::now();
-    let dense = mesh::load_dense(&job.input)?;
+    let dense = mesh::load_scan(&job.input, &job.preparation)?;
     let t_loaded = Instant::now();
     let (genus, loops_in) = topology_summary(dense.positions.len(), &dense.faces);
     let mut state = State::new(&dense, &job.options);
-    let gpu = open_backend(job.backend, &state.dense)?;
+    let (gpu, backend_note) = open_backend(job.backend, &state.dense)?;
     let t_init = Instant::now();
 
     let faces_in = dense.faces.len();
@@ -206,34 +212,58 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
     )?;
     let t_global = Instant::now();
     let (_, loops_out) = topology_summary(base.positions.len(), &base.faces);
+    let settings = Settings {
+        normals: job.options.normals,
+        dmax: state.dmax,
+        strict: job.options.strict,
+        scan: job.input.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default(),
+        scan_faces: dense.faces.len(),
+        preparation: job.preparation,
+    };
     let header = format!(
-        "dispdec base mesh: {} faces from {} ({} normals{})\nvn are the directions N used by the displacement map",
+        "dispdec base mesh: {} faces from {} ({} normals{})\nvn are the directions N used by the displacement map\n{}",
         base.faces.len(),
         job.input.display(),
         if job.options.normals == NormalMode::Constant { "constant" } else { "interpolated" },
-        if job.options.strict { ", strict" } else { "" }
+        if job.options.strict { ", strict" } else { "" },
+        settings.obj_line()
     );
     let obj = mesh::obj_with_normals(&base.positions, &base.directions, &base.faces, &header);
     let map_bytes = job.map.as_ref().map(|_| {
-        let mut records = vec![
-            Record { face: u32::MAX, status: STATUS_UNREFERENCED, bary: [0.0; 3], d: 0.0 };
-            dense.input_vertex_count
-        ];
-        for (v, m) in state.assoc.iter().enumerate() {
-            records[dense.input_index[v] as usize] = Record {
-                face: base.face_map[m.face as usize],
-                status: if state.dense.pinched[v] { STATUS_PINCHED } else { STATUS_MAPPED },
-                bary: m.bary.map(|b| b as f32),
-                d: m.d as f32,
-            };
-        }
+        let records = dense
+            .dense_of_input
+            .iter()
+            .map(|&v| match v {
+                u32::MAX => Record { face: u32::MAX, status: STATUS_UNREFERENCED, bary: [0.0; 3], d: 0.0 },
+                v => {
+                    let m = &state.assoc[v as usize];
+                    Record {
+                        face: base.face_map[m.face as usize],
+                        status: if state.dense.pinched[v as usize] { STATUS_PINCHED } else { STATUS_MAPPED },
+                        bary: m.bary.map(|b| b as f32),
+                        d: m.d as f32,
+                    }
+                }
+            })
+            .collect();
         MapFile {
             base_faces: base.faces.len() as u32,
             dmax: state.dmax as f32,
             constant_normals: job.options.normals == NormalMode::Constant,
+            strict: job.options.strict,
+            settings: Some(settings.clone()),
             records,
         }
         .to_bytes()
+    });
+    let repaired_obj = job.repaired.as_ref().map(|p| {
+        let text = mesh::obj_with_normals(
+            &dense.positions,
+            &[],
+            &dense.faces,
+            &format!("{} as decimated by dispdec ({:?})", job.input.display(), job.preparation),
+        );
+        mesh::maybe_gzip(p, text.into_bytes())
     });
     let faces_out = base.faces.len();
     let mut report = Report {
@@ -257,7 +287,12 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         unmapped_at_start: state.unmapped_at_start,
         backend: if gpu.is_some() { "gpu".into() } else { "cpu".into() },
         adapter: evaluator.name(),
+        backend_note,
         gpu_band: gpu.as_ref().map(|g| g.stats()),
+        settings,
+        input_cleanup: dense.cleanup.clone(),
+        input_faces: dense.input_face_count,
+        warnings: dense.warnings.clone(),
         collapses: state.stats.clone(),
         recheck: RecheckSummary {
             valid: recheck.ok(),
@@ -292,6 +327,10 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
             write_atomic(p, b)?;
             written.push(p.clone());
         }
+        if let (Some(p), Some(b)) = (&job.repaired, &repaired_obj) {
+            write_atomic(p, b)?;
+            written.push(p.clone());
+        }
         report.time.write_s = t_w.elapsed().as_secs_f64();
         report.time.total_s = t_start.elapsed().as_secs_f64();
         if let Some(p) = &job.report {
@@ -321,9 +360,8 @@ pub struct ValidateJob {
     pub fold_image: Option<PathBuf>,
     /// Atlas size in texels (the fold image and the per-face coverage).
     pub resolution: u32,
-    pub dmax: Option<f64>,
-    pub strict: bool,
-    pub normals: NormalMode,
+    /// Mode, dmax, strictness and preparation: each from its flag, else from BASE's settings.
+    pub flags: Flags,
     pub threads: Option<usize>,
     pub backend: Backend,
 }
@@ -360,25 +398,43 @@ pub struct ValidateReport {
     /// `null` for a manifold base, else why it is not one (it is judged all the same).
     pub non_manifold: Option<String>,
     pub normals: NormalMode,
+    pub strict: bool,
+    /// The settings BASE.obj records (`null` for a base dispdec did not write).
+    pub base_settings: Option<Settings>,
+    /// What welding and repair of HIGH changed (the preparation BASE was made with, unless a
+    /// flag overrode it).
+    pub input_cleanup: Cleanup,
     pub backend: String,
+    pub backend_note: Option<String>,
     /// GPU backend: how the projection's answers fell; `null` on the CPU.
     pub gpu_band: Option<BandStats>,
     pub verdict: crate::validate::Verdict,
     pub first_failures: Vec<Failure>,
     pub coverage: CoverageSummary,
+    /// Flags that contradict BASE's settings, a scan other than BASE's, what the readers
+    /// skipped, a base that is not a manifold or has no directions.
+    pub warnings: Vec<String>,
     pub time_s: f64,
+}
+
+fn check_dmax(dmax: Option<f64>) -> Result<(), Error> {
+    match dmax {
+        Some(d) if !(d > 0.0 && d.is_finite()) => Err(Error::Usage(format!("--dmax must be a positive number, got {d}"))),
+        _ => Ok(()),
+    }
+}
+
+fn check_resolution(resolution: u32) -> Result<(), Error> {
+    if !(16..=16384).contains(&resolution) {
+        return Err(Error::Usage(format!("--resolution must be between 16 and 16384, got {resolution}")));
+    }
+    Ok(())
 }
 
 /// Judges BASE against HIGH from scratch; writes the JSON report and the fold image if asked.
 pub fn validate(job: &ValidateJob) -> Result<ValidateReport, Error> {
-    if let Some(d) = job.dmax {
-        if !(d > 0.0 && d.is_finite()) {
-            return Err(Error::Usage(format!("--dmax must be a positive number, got {d}")));
-        }
-    }
-    if !(16..=16384).contains(&job.resolution) {
-        return Err(Error::Usage(format!("--resolution must be between 16 and 16384, got {}", job.resolution)));
-    }
+    check_dmax(job.flags.dmax)?;
+    check_resolution(job.resolution)?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(job.threads.unwrap_or(0))
         .build()
@@ -386,17 +442,38 @@ pub fn validate(job: &ValidateJob) -> Result<ValidateReport, Error> {
     pool.install(|| validate_in_pool(job))
 }
 
+/// A base, the scan it is judged against, and what to judge them with: the flags resolved
+/// against the base's settings, with every warning on the way.
+struct Pair {
+    base: LoadedBaseMesh,
+    high: mesh::DenseMesh,
+    normals: NormalMode,
+    dmax: f64,
+    strict: bool,
+    warnings: Vec<String>,
+}
+
+fn load_pair(high_path: &std::path::Path, base_path: &std::path::Path, flags: &Flags) -> Result<Pair, Error> {
+    let base = load_base_with_directions(base_path)?;
+    let base_name = base_path.display().to_string();
+    let r = crate::settings::resolve(flags, base.settings.as_ref(), &base_name);
+    let high = mesh::load_scan(high_path, &r.preparation)?;
+    let mut warnings = base.warnings.clone();
+    warnings.extend(r.warnings);
+    warnings.extend(high.warnings.iter().cloned());
+    warnings.extend(crate::settings::scan_mismatch(base.settings.as_ref(), &base_name, &high_path.display().to_string(), high.faces.len()));
+    let dmax = r.dmax.unwrap_or_else(|| crate::decimate::DEFAULT_DMAX_FRACTION * mesh::bbox_diagonal(high.positions.iter().copied()));
+    Ok(Pair { base, high, normals: r.normals, dmax, strict: r.strict, warnings })
+}
+
 fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
     let t0 = Instant::now();
-    let high = mesh::load_dense(&job.high)?;
-    let (b, from_file, manifold) = load_base_with_directions(&job.base)?;
-    let dmax = job.dmax.unwrap_or_else(|| {
-        crate::decimate::DEFAULT_DMAX_FRACTION * mesh::bbox_diagonal(high.positions.iter().copied())
-    });
+    let Pair { base: loaded, high, normals, dmax, strict, warnings } = load_pair(&job.high, &job.base, &job.flags)?;
+    let b = &loaded.base;
     let dense = mesh::DenseData::new(&high.positions, &high.faces);
-    let gpu = open_backend(job.backend, &dense)?;
-    let (verdict, maps) = crate::validate::validate_on(&dense, &b, job.normals, dmax, job.strict, true, gpu.as_ref())?;
-    let fold = crate::fold::fold_image(&dense, &b, &maps, job.normals, dmax, job.resolution);
+    let (gpu, backend_note) = open_backend(job.backend, &dense)?;
+    let (verdict, maps) = crate::validate::validate_on(&dense, b, normals, dmax, strict, true, gpu.as_ref())?;
+    let fold = crate::fold::fold_image(&dense, b, &maps, normals, dmax, job.resolution);
     let per_face = fold.coverage();
     let coverage = CoverageSummary {
         resolution: fold.atlas.size,
@@ -425,17 +502,22 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
         base: job.base.display().to_string(),
         dense_faces: high.faces.len(),
         base_faces: b.faces.len(),
-        directions: if from_file { "file" } else { "computed" },
-        non_manifold: manifold.err(),
-        normals: job.normals,
+        directions: if loaded.directions_from_file { "file" } else { "computed" },
+        non_manifold: loaded.manifold.clone().err(),
+        normals,
+        strict,
+        base_settings: loaded.settings.clone(),
+        input_cleanup: high.cleanup.clone(),
         backend: match &gpu {
             Some(g) => format!("gpu: {}", g.adapter()),
             None => format!("cpu ({} threads)", rayon::current_num_threads()),
         },
+        backend_note,
         gpu_band: gpu.as_ref().map(|g| g.stats()),
         verdict,
         first_failures,
         coverage,
+        warnings,
         time_s: t0.elapsed().as_secs_f64(),
     };
     if let Some(p) = &job.fold_image {
@@ -456,28 +538,59 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
 // ---------------------------------------------------------------------------------------------
 // dispdec bake / reconstruct
 
-/// Loads a base mesh with its directions (`vn`, else the README's rule): the base, whether the
-/// directions came from the file, and the manifold check's verdict.
-pub fn load_base_with_directions(path: &std::path::Path) -> Result<(crate::validate::Base, bool, Result<(), String>), Error> {
+/// A base mesh as the commands that judge or use it load it.
+pub struct LoadedBaseMesh {
+    pub base: crate::validate::Base,
+    /// Whether the directions are the file's `vn` (else the README's rule computed them).
+    pub directions_from_file: bool,
+    /// The manifold check's verdict (a non-manifold base is judged all the same).
+    pub manifold: Result<(), String>,
+    /// The settings it records (`None` for a base dispdec did not write).
+    pub settings: Option<Settings>,
+    /// No directions, not a manifold, unreadable settings.
+    pub warnings: Vec<String>,
+}
+
+/// Loads a base mesh with its directions (`vn`, else the README's rule) and its settings.
+pub fn load_base_with_directions(path: &std::path::Path) -> Result<LoadedBaseMesh, Error> {
     let base = mesh::load_base(path)?;
-    if base.normals.len() == base.positions.len() {
-        let b = crate::validate::Base { positions: base.positions, directions: base.normals, faces: base.faces };
-        return Ok((b, true, base.manifold));
+    let mut warnings = Vec::new();
+    let settings = base.settings.as_deref().and_then(|t| match Settings::parse(t) {
+        Ok(s) => Some(s),
+        Err(e) => {
+            warnings.push(format!("{}: {e}; judged without its settings", path.display()));
+            None
+        }
+    });
+    if let Err(why) = &base.manifold {
+        warnings.push(format!("{}: not a manifold ({why}); judged all the same", path.display()));
     }
-    let (start, vf) = mesh::vertex_faces(base.positions.len(), &base.faces);
-    let directions = (0..base.positions.len())
-        .map(|v| {
-            let cross: Vec<glam::DVec3> = vf[start[v] as usize..start[v + 1] as usize]
-                .iter()
-                .map(|&f| {
-                    let t = base.faces[f as usize].map(|w| base.positions[w as usize]);
-                    crate::geometry::face_cross(t[0], t[1], t[2])
-                })
-                .collect();
-            crate::geometry::vertex_direction(&cross)
-        })
-        .collect();
-    Ok((crate::validate::Base { positions: base.positions, directions, faces: base.faces }, false, base.manifold))
+    let from_file = base.normals.len() == base.positions.len();
+    let directions = if from_file {
+        base.normals
+    } else {
+        warnings.push(format!("{}: no vn per vertex; using computed directions (area-weighted, README rule)", path.display()));
+        let (start, vf) = mesh::vertex_faces(base.positions.len(), &base.faces);
+        (0..base.positions.len())
+            .map(|v| {
+                let cross: Vec<glam::DVec3> = vf[start[v] as usize..start[v + 1] as usize]
+                    .iter()
+                    .map(|&f| {
+                        let t = base.faces[f as usize].map(|w| base.positions[w as usize]);
+                        crate::geometry::face_cross(t[0], t[1], t[2])
+                    })
+                    .collect();
+                crate::geometry::vertex_direction(&cross)
+            })
+            .collect()
+    };
+    Ok(LoadedBaseMesh {
+        base: crate::validate::Base { positions: base.positions, directions, faces: base.faces },
+        directions_from_file: from_file,
+        manifold: base.manifold,
+        settings,
+        warnings,
+    })
 }
 
 /// Agreement of a baked map with the decimator's per-vertex d (BASE.map): the map sampled at
@@ -491,42 +604,58 @@ pub struct MapAgreement {
     pub max: f64,
 }
 
-/// `dispdec bake HIGH BASE.obj [--map BASE.map] -o DISP.(png|pfm)`: returns (texels with d,
-/// texels in the atlas, seconds, agreement with BASE.map when given).
-pub fn bake(
-    high: &std::path::Path,
-    base: &std::path::Path,
-    map: Option<&std::path::Path>,
-    out: &std::path::Path,
-    resolution: u32,
-    dmax: Option<f64>,
-) -> Result<(usize, usize, f64, Option<MapAgreement>), Error> {
+/// Everything `dispdec bake` needs.
+#[derive(Clone, Debug)]
+pub struct BakeJob {
+    pub high: PathBuf,
+    pub base: PathBuf,
+    /// The decimator's BASE.map: report how closely the baked map reproduces its d.
+    pub map: Option<PathBuf>,
+    pub output: PathBuf,
+    pub resolution: u32,
+    pub flags: Flags,
+}
+
+/// What `dispdec bake` did.
+#[derive(Clone, Debug)]
+pub struct BakeReport {
+    /// Texels that carry d, of all texels of the atlas.
+    pub defined: usize,
+    pub texels: usize,
+    pub seconds: f64,
+    pub normals: NormalMode,
+    pub dmax: f64,
+    pub agreement: Option<MapAgreement>,
+    pub warnings: Vec<String>,
+}
+
+/// `dispdec bake HIGH BASE.obj [--map BASE.map] -o DISP.(png|pfm)`.
+pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
     let t0 = Instant::now();
+    let out = &job.output;
     let ext = out.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
     if ext != "png" && ext != "pfm" {
         return Err(Error::Usage(format!("{}: the displacement map is written as .png (16-bit + .png.json) or .pfm (32-bit float)", out.display())));
     }
-    if !(16..=16384).contains(&resolution) {
-        return Err(Error::Usage(format!("--resolution must be between 16 and 16384, got {resolution}")));
-    }
-    let scan = mesh::load_dense(high)?;
-    let (b, _, _) = load_base_with_directions(base)?;
-    let dmax = dmax.unwrap_or_else(|| crate::decimate::DEFAULT_DMAX_FRACTION * mesh::bbox_diagonal(scan.positions.iter().copied()));
+    check_resolution(job.resolution)?;
+    check_dmax(job.flags.dmax)?;
+    let Pair { base: loaded, high: scan, normals, dmax, warnings, .. } = load_pair(&job.high, &job.base, &job.flags)?;
+    let b = &loaded.base;
     let dense = mesh::DenseData::new(&scan.positions, &scan.faces);
-    let per_vertex = match map {
+    let per_vertex = match &job.map {
         Some(p) => {
             let m = crate::mapfile::MapFile::read(p)?;
             if m.base_faces as usize != b.faces.len() {
                 return Err(Error::Input {
                     path: p.display().to_string(),
-                    msg: format!("a map for a {}-face base, but {} has {} faces", m.base_faces, base.display(), b.faces.len()),
+                    msg: format!("a map for a {}-face base, but {} has {} faces", m.base_faces, job.base.display(), b.faces.len()),
                 });
             }
             Some(m)
         }
         None => None,
     };
-    let map = crate::bake::bake(&dense, &b, NormalMode::Interpolated, dmax, resolution);
+    let map = crate::bake::bake(&dense, b, normals, dmax, job.resolution);
     let agreement = per_vertex.map(|m| {
         let mut diffs = Vec::new();
         let mut missing = 0;
@@ -550,11 +679,20 @@ pub fn bake(
             return Err(e);
         }
     }
-    Ok((map.defined(), map.d.len(), t0.elapsed().as_secs_f64(), agreement))
+    Ok(BakeReport {
+        defined: map.defined(),
+        texels: map.d.len(),
+        seconds: t0.elapsed().as_secs_f64(),
+        normals,
+        dmax,
+        agreement,
+        warnings,
+    })
 }
 
 /// `dispdec reconstruct BASE.obj DISP --levels L -o OUT.obj [--compare HIGH]`: writes the mesh
-/// at level L and returns the distances of levels 0..=L when comparing.
+/// at level L and returns the distances of levels 0..=L when comparing, and the warnings. The
+/// normal mode is BASE's (its settings), unless `normals` overrides it.
 pub fn reconstruct(
     base: &std::path::Path,
     disp: &std::path::Path,
@@ -562,17 +700,23 @@ pub fn reconstruct(
     out: &std::path::Path,
     compare: Option<&std::path::Path>,
     plot: Option<&std::path::Path>,
-) -> Result<Vec<crate::reconstruct::Distances>, Error> {
+    normals: Option<NormalMode>,
+) -> Result<(Vec<crate::reconstruct::Distances>, Vec<String>), Error> {
     if plot.is_some() && compare.is_none() {
         return Err(Error::Usage("--plot needs --compare HIGH".into()));
     }
     if levels > 6 {
         return Err(Error::Usage(format!("--levels must be 0 to 6, got {levels}")));
     }
-    let (b, _, _) = load_base_with_directions(base)?;
+    let loaded = load_base_with_directions(base)?;
+    let flags = Flags { normals, ..Default::default() };
+    let r = crate::settings::resolve(&flags, loaded.settings.as_ref(), &base.display().to_string());
+    let mut warnings = loaded.warnings.clone();
+    warnings.extend(r.warnings);
+    let b = &loaded.base;
     let map = crate::bake::DispMap::read(disp, b.faces.len())?;
     let scan = match compare {
-        Some(p) => Some(mesh::load_dense(p)?),
+        Some(p) => Some(mesh::load_scan(p, &r.preparation)?),
         None => None,
     };
     let mut table = Vec::new();
@@ -581,32 +725,22 @@ pub fn reconstruct(
         if scan.is_none() && level < levels {
             continue;
         }
-        let r = crate::reconstruct::reconstruct(&b, &map, level);
+        let rebuilt = crate::reconstruct::reconstruct(b, &map, level, r.normals);
         if let Some(s) = &scan {
-            table.push(crate::reconstruct::compare(&r, level, &s.positions, &s.faces));
+            table.push(crate::reconstruct::compare(&rebuilt, level, &s.positions, &s.faces));
         }
-        last = Some(r);
+        last = Some(rebuilt);
     }
-    let r = last.expect("at least one level");
-    let mut text = String::with_capacity(40 * (r.positions.len() + r.faces.len()));
-    {
-        use std::fmt::Write;
-        let _ = writeln!(text, "# dispdec reconstruct: {} at level {levels}, {} faces", base.display(), r.faces.len());
-        for p in &r.positions {
-            let _ = writeln!(text, "v {} {} {}", p.x, p.y, p.z);
-        }
-        for f in &r.faces {
-            let _ = writeln!(text, "f {} {} {}", f[0] + 1, f[1] + 1, f[2] + 1);
-        }
-    }
-    write_atomic(out, text.as_bytes())?;
+    let rebuilt = last.expect("at least one level");
+    let header = format!("dispdec reconstruct: {} at level {levels}, {} faces", base.display(), rebuilt.faces.len());
+    write_atomic(out, mesh::obj_with_normals(&rebuilt.positions, &[], &rebuilt.faces, &header).as_bytes())?;
     if let Some(p) = plot {
         if let Err(e) = write_atomic(p, &crate::plot::error_plot(&table)) {
             let _ = std::fs::remove_file(out);
             return Err(e);
         }
     }
-    Ok(table)
+    Ok((table, warnings))
 }
 
 // ---------------------------------------------------------------------------------------------

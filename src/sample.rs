@@ -118,7 +118,7 @@ pub fn generate(spec: SampleSpec) -> crate::mesh::Mesh {
             }
         }
     }
-    crate::mesh::Mesh { positions, faces, normals: Vec::new() }
+    crate::mesh::Mesh { positions, faces, ..Default::default() }
 }
 
 /// OBJ text of a mesh (v/f only), the format of `data/sample.obj.gz`.

@@ -321,7 +321,8 @@ impl Topology {
     }
 }
 
-/// (genus, boundary loops) of a single-component mesh from its Euler characteristic.
+/// (genus, boundary loops) from the Euler characteristic; the genus is summed over the
+/// components (each has chi = 2 - 2g - b).
 pub fn topology_summary(nv: usize, faces: &[[u32; 3]]) -> (i64, usize) {
     let topo = Topology::build(nv, faces).expect("base mesh stays manifold");
     let mut seen = vec![false; topo.corner.len()];
@@ -349,9 +350,34 @@ pub fn topology_summary(nv: usize, faces: &[[u32; 3]]) -> (i64, usize) {
         }
     }
     let e = edges2 / 2;
-    let chi = nv as i64 - e as i64 + faces.len() as i64;
-    // chi = 2 - 2g - b for one component.
-    let genus = (2 - chi - loops as i64) / 2;
+    let used = {
+        let mut u = vec![false; nv];
+        for &v in faces.iter().flatten() {
+            u[v as usize] = true;
+        }
+        u.iter().filter(|&&x| x).count()
+    };
+    let chi = used as i64 - e as i64 + faces.len() as i64;
+    // Components: faces joined across interior edges.
+    let mut parent: Vec<u32> = (0..faces.len() as u32).collect();
+    fn find(p: &mut [u32], mut x: u32) -> u32 {
+        while p[x as usize] != x {
+            p[x as usize] = p[p[x as usize] as usize];
+            x = p[x as usize];
+        }
+        x
+    }
+    for h in 0..topo.corner.len() as u32 {
+        let o = topo.opp[h as usize];
+        if o != INVALID {
+            let (a, b) = (find(&mut parent, face_of(h)), find(&mut parent, face_of(o)));
+            if a != b {
+                parent[a.max(b) as usize] = a.min(b);
+            }
+        }
+    }
+    let components = (0..faces.len() as u32).filter(|&f| find(&mut parent, f) == f).count() as i64;
+    let genus = (2 * components - chi - loops as i64) / 2;
     (genus, loops)
 }
 

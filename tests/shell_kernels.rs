@@ -224,7 +224,7 @@ fn validate_projection_on_gpu_equals_cpu() {
     let dir = tempdir("validate-parity");
     let qem = dir.join("qem.obj");
     write_obj(&qem, &scan.positions, &faces);
-    let (base, _, _) = dispdec::run::load_base_with_directions(&qem).unwrap();
+    let base = dispdec::run::load_base_with_directions(&qem).unwrap().base;
     let dmax = 0.1 * dispdec::mesh::bbox_diagonal(scan.positions.iter().copied());
     let ev = GpuEvaluator::new(gpu, &dense).unwrap();
     let (cv, cm) = dispdec::validate::validate_on(&dense, &base, NormalMode::Interpolated, dmax, false, false, None).unwrap();
@@ -294,11 +294,15 @@ fn backend_auto_says_what_it_uses() {
     let dir = tempdir("backend-auto");
     let scan = dir.join("scan.obj");
     assert_eq!(run(&["sample", "--faces", "2000", "-o", scan.to_str().unwrap()]).status.code(), Some(0));
-    let o = run(&["decimate", scan.to_str().unwrap(), "-o", dir.join("b.obj").to_str().unwrap(), "--backend", "auto", "-q"]);
+    let rep = dir.join("r.json");
+    let o = run(&["decimate", scan.to_str().unwrap(), "-o", dir.join("b.obj").to_str().unwrap(), "--backend", "auto", "--verbose", "--report", rep.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(0));
     let err = String::from_utf8_lossy(&o.stderr);
-    let line = err.lines().find(|l| l.contains("--backend auto")).expect("a line about the backend");
+    let line = err.lines().find(|l| l.contains("--backend auto")).expect("with --verbose, a line about the backend");
     assert!(line.contains("using the CPU") || line.contains("using the GPU"), "{line}");
+    // The report says the same, whatever the verbosity.
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&rep).unwrap()).unwrap();
+    assert!(line.ends_with(r["backend_note"].as_str().unwrap()), "{line} / {}", r["backend_note"]);
 }
 
 /// `dispdec bench` on a small generated mesh, every path, three runs: the JSON has a row per

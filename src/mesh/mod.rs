@@ -1,0 +1,522 @@
+//! Mesh types, input (OBJ, PLY, plain or gzip), welding and repair, the input checks, and OBJ
+//! output. The data flows one way: file → [`Mesh`] (as written) → weld → repair (when asked)
+//! → checks → [`DenseMesh`].
+
+mod obj;
+mod ply;
+pub mod repair;
+
+use crate::geometry::{face_normal, maxmin_direction};
+use crate::topology::{Topology, TopologyError};
+use crate::Error;
+use glam::DVec3;
+use rayon::prelude::*;
+use repair::{Cleanup, Preparation, RepairError};
+use std::io::{BufRead, BufReader, Read};
+use std::path::Path;
+
+pub use obj::SETTINGS_TAG;
+
+/// A triangle mesh as read from a file, numbered as in the file.
+#[derive(Clone, Debug, Default)]
+pub struct Mesh {
+    pub positions: Vec<DVec3>,
+    pub faces: Vec<[u32; 3]>,
+    /// One normal per position when the file gives them (OBJ `vn` referenced by every face
+    /// corner), else empty.
+    pub normals: Vec<DVec3>,
+    /// The text of a `# dispdec-settings` line (a base mesh written by dispdec).
+    pub settings: Option<String>,
+    /// What the reader skipped and the user may want to know (never a failure).
+    pub warnings: Vec<String>,
+}
+
+/// A checked dense mesh: referenced vertices only, manifold, consistently wound.
+#[derive(Clone, Debug)]
+pub struct DenseMesh {
+    pub positions: Vec<DVec3>,
+    pub faces: Vec<[u32; 3]>,
+    /// For each vertex here, its vertex in the input file (the lowest of those welded into it).
+    pub input_index: Vec<u32>,
+    /// For each vertex of the input file, its vertex here (`u32::MAX`: unreferenced, or only
+    /// on faces that `--repair` dropped). A vertex that repair split maps to its first fan.
+    pub dense_of_input: Vec<u32>,
+    /// Number of vertices in the input file (referenced or not).
+    pub input_vertex_count: usize,
+    /// Number of faces in the input file, triangulated.
+    pub input_face_count: usize,
+    pub topology: Topology,
+    /// What welding and repair changed.
+    pub cleanup: Cleanup,
+    pub warnings: Vec<String>,
+}
+
+impl Mesh {
+    /// Axis-aligned bounding box of the referenced vertices.
+    pub fn bbox_diagonal(&self) -> f64 {
+        bbox_diagonal(self.faces.iter().flatten().map(|&v| self.positions[v as usize]))
+    }
+}
+
+pub fn bbox_diagonal(points: impl Iterator<Item = DVec3>) -> f64 {
+    let mut lo = DVec3::splat(f64::INFINITY);
+    let mut hi = DVec3::splat(f64::NEG_INFINITY);
+    for p in points {
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    if lo.x > hi.x {
+        0.0
+    } else {
+        (hi - lo).length()
+    }
+}
+
+fn input_err(path: &Path, msg: impl Into<String>) -> Error {
+    Error::Input { path: path.display().to_string(), msg: msg.into() }
+}
+
+/// Opens a file as a buffered stream, transparently gunzipping it.
+fn open_maybe_gz(path: &Path) -> Result<Box<dyn BufRead>, Error> {
+    let cannot = |e: std::io::Error| input_err(path, format!("cannot read file: {e}"));
+    let file = std::fs::File::open(path).map_err(cannot)?;
+    if file.metadata().map_err(cannot)?.is_dir() {
+        return Err(input_err(path, "cannot read file: it is a directory"));
+    }
+    let mut r = BufReader::with_capacity(1 << 20, file);
+    let head = r.fill_buf().map_err(cannot)?;
+    if head.len() >= 2 && head[0] == 0x1f && head[1] == 0x8b {
+        Ok(Box::new(BufReader::with_capacity(1 << 20, GzErrors { inner: flate2::bufread::MultiGzDecoder::new(r) })))
+    } else {
+        Ok(Box::new(r))
+    }
+}
+
+/// Marks decoder failures so that they read as what they are (corrupt gzip), not as PLY or
+/// OBJ defects.
+struct GzErrors<R> {
+    inner: R,
+}
+
+impl<R: Read> Read for GzErrors<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        self.inner.read(buf).map_err(|e| std::io::Error::new(e.kind(), format!("corrupt or truncated gzip data: {e}")))
+    }
+}
+
+/// Loads an OBJ or PLY file (plain or gzip-compressed) as written, without checks.
+pub fn load_raw(path: &Path) -> Result<Mesh, Error> {
+    let mut r = open_maybe_gz(path)?;
+    let head = r.fill_buf().map_err(|e| input_err(path, e.to_string()))?;
+    if head.is_empty() {
+        return Err(input_err(path, "file is empty"));
+    }
+    if head.starts_with(b"ply") {
+        return ply::load_ply(path, r);
+    }
+    let name = path.to_string_lossy().to_ascii_lowercase();
+    let name = name.strip_suffix(".gz").unwrap_or(&name);
+    if name.ends_with(".ply") {
+        return Err(input_err(path, "not a PLY file: the first line is not 'ply'"));
+    }
+    let mut bytes = Vec::new();
+    r.read_to_end(&mut bytes).map_err(|e| input_err(path, e.to_string()))?;
+    obj::load_obj(path, &bytes)
+}
+
+/// Loads and checks a dense input mesh with the default preparation (welded, not repaired).
+pub fn load_dense(path: &Path) -> Result<DenseMesh, Error> {
+    load_scan(path, &Preparation::default())
+}
+
+/// Loads a dense input mesh, welds and repairs it as `prep` says, and checks it (SPEC §2, §6:
+/// unreferenced vertices are ignored; every other defect is an error naming the first
+/// offending element and the option that would fix it).
+pub fn load_scan(path: &Path, prep: &Preparation) -> Result<DenseMesh, Error> {
+    let mesh = load_raw(path)?;
+    prepare(path, mesh, prep)
+}
+
+/// A base mesh to be judged: it may come from any decimator, so only what the check needs is
+/// required (valid indices, finite coordinates, no degenerate face); `topology` is the manifold
+/// check's verdict, an error message when the base is not a manifold.
+pub struct LoadedBase {
+    pub positions: Vec<DVec3>,
+    pub faces: Vec<[u32; 3]>,
+    pub normals: Vec<DVec3>,
+    pub manifold: Result<(), String>,
+    /// The `# dispdec-settings` line, when dispdec wrote the file.
+    pub settings: Option<String>,
+}
+
+/// Loads a base mesh for validation (see [`LoadedBase`]). Its vertices are never welded: a
+/// base is taken exactly as written.
+pub fn load_base(path: &Path) -> Result<LoadedBase, Error> {
+    let mesh = load_raw(path)?;
+    let settings = mesh.settings.clone();
+    check_indices(path, &mesh)?;
+    check_finite(path, &mesh)?;
+    let (positions, faces, input_index) = compact(&mesh.positions, &mesh.faces, &[], &[]);
+    if let Some(fi) = faces.iter().position(|f| repair::is_degenerate(&positions, *f)) {
+        return Err(degenerate_err(path, faces[fi], fi, false));
+    }
+    let normals = if mesh.normals.len() == mesh.positions.len() { input_index.iter().map(|&v| mesh.normals[v as usize]).collect() } else { Vec::new() };
+    let manifold = Topology::build(positions.len(), &faces).map(|_| ()).map_err(|e| e.to_string());
+    Ok(LoadedBase { positions, faces, normals, manifold, settings })
+}
+
+/// Checks a mesh as read with the default preparation (used by the sample generator's tests).
+pub fn check_and_compact(path: &Path, mesh: Mesh) -> Result<DenseMesh, Error> {
+    prepare(path, mesh, &Preparation::default())
+}
+
+fn check_indices(path: &Path, mesh: &Mesh) -> Result<(), Error> {
+    let n = mesh.positions.len();
+    if mesh.faces.is_empty() {
+        return Err(input_err(path, "the mesh has no faces"));
+    }
+    for (fi, f) in mesh.faces.iter().enumerate() {
+        for &v in f {
+            if v as usize >= n {
+                return Err(input_err(path, format!("face {fi} references vertex {v}, but the file has only {n} vertices")));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Every vertex a face references has finite coordinates (whatever the options: no repair can
+/// guess a coordinate).
+fn check_finite(path: &Path, mesh: &Mesh) -> Result<(), Error> {
+    match mesh.faces.iter().flatten().find(|&&v| !mesh.positions[v as usize].is_finite()) {
+        Some(&v) => {
+            let p = mesh.positions[v as usize];
+            Err(input_err(path, format!("vertex {v} has a non-finite coordinate ({}, {}, {})", p.x, p.y, p.z)))
+        }
+        None => Ok(()),
+    }
+}
+
+fn degenerate_err(path: &Path, f: [u32; 3], fi: usize, hint: bool) -> Error {
+    let how = if f[0] == f[1] || f[1] == f[2] || f[0] == f[2] { "it repeats a vertex" } else { "it has zero area" };
+    let fix = if hint { " (--repair drops degenerate faces)" } else { "" };
+    input_err(path, format!("face {fi} is degenerate: {how}{fix}"))
+}
+
+/// The referenced vertices in input order (copies made by repair right after their input
+/// vertex), faces renumbered onto them, and each one's input vertex.
+fn compact(positions: &[DVec3], faces: &[[u32; 3]], copies: &[u32], copy_positions: &[DVec3]) -> (Vec<DVec3>, Vec<[u32; 3]>, Vec<u32>) {
+    let n = positions.len();
+    let origin = |v: u32| if (v as usize) < n { v } else { copies[v as usize - n] };
+    let mut used = vec![false; n + copies.len()];
+    for f in faces {
+        for &v in f {
+            used[v as usize] = true;
+        }
+    }
+    let mut order: Vec<u32> = (0..used.len() as u32).filter(|&v| used[v as usize]).collect();
+    order.sort_unstable_by_key(|&v| (origin(v), v));
+    let mut remap = vec![u32::MAX; used.len()];
+    for (i, &v) in order.iter().enumerate() {
+        remap[v as usize] = i as u32;
+    }
+    let input_index: Vec<u32> = order.iter().map(|&v| origin(v)).collect();
+    let out_pos = order.iter().map(|&v| if (v as usize) < n { positions[v as usize] } else { copy_positions[v as usize - n] }).collect();
+    let out_faces = faces.iter().map(|f| f.map(|v| remap[v as usize])).collect();
+    (out_pos, out_faces, input_index)
+}
+
+/// Weld, repair (if asked), compact, check.
+fn prepare(path: &Path, mesh: Mesh, prep: &Preparation) -> Result<DenseMesh, Error> {
+    check_indices(path, &mesh)?;
+    check_finite(path, &mesh)?;
+    let n = mesh.positions.len();
+    let input_face_count = mesh.faces.len();
+    let mut cleanup = Cleanup::default();
+    let mut faces = mesh.faces;
+    let mut weld_rep = Vec::new();
+    if prep.weld {
+        let (rep, merged) = repair::weld_vertices(&mesh.positions, &mut faces);
+        cleanup.welded_vertices = merged;
+        weld_rep = rep;
+    }
+    let (mut copies, mut copy_positions) = (Vec::new(), Vec::new());
+    if prep.repair {
+        let r = repair::repair_faces(&mesh.positions, faces, prep.min_component, &mut cleanup).map_err(|e| match e {
+            RepairError::TooManyRemoved { removed, faces, a, b, count } => input_err(
+                path,
+                format!(
+                    "--repair would remove {removed} of {faces} faces ({:.2} %, more than {} %) to resolve non-manifold edges (first: the edge between vertices {a} and {b}, shared by {count} faces); this is not a scan with a few defects",
+                    100.0 * removed as f64 / faces as f64,
+                    100.0 * repair::MAX_REPAIR_FACE_FRACTION
+                ),
+            ),
+            RepairError::NonOrientable { a, b } => input_err(
+                path,
+                format!("--repair cannot wind a component consistently: it is not orientable (at the edge between vertices {a} and {b})"),
+            ),
+        })?;
+        faces = r.faces;
+        copies = r.copies;
+        copy_positions = r.copy_positions;
+        if faces.is_empty() {
+            return Err(input_err(path, "no faces are left after --repair"));
+        }
+    }
+    let (positions, faces, input_index) = compact(&mesh.positions, &faces, &copies, &copy_positions);
+    if !prep.repair {
+        if let Some(fi) = faces.iter().position(|f| repair::is_degenerate(&positions, *f)) {
+            return Err(degenerate_err(path, faces[fi], fi, true));
+        }
+        if let Some((f, g)) = repair::first_duplicate(&faces) {
+            return Err(input_err(path, format!("faces {f} and {g} are duplicates: the same three vertices (--repair drops duplicate faces)")));
+        }
+    }
+    let topology = topology_checked(path, &positions, &faces, &input_index, prep, cleanup.welded_vertices)?;
+    repair::count_components(&faces, &mut cleanup);
+    let mut dense_of_input = vec![u32::MAX; n];
+    for (d, &i) in input_index.iter().enumerate().rev() {
+        dense_of_input[i as usize] = d as u32;
+    }
+    // A welded-away vertex maps where the vertex it was merged into does.
+    for (i, &r) in weld_rep.iter().enumerate() {
+        if dense_of_input[i] == u32::MAX {
+            dense_of_input[i] = dense_of_input[r as usize];
+        }
+    }
+    Ok(DenseMesh {
+        positions,
+        faces,
+        input_index,
+        dense_of_input,
+        input_vertex_count: n,
+        input_face_count,
+        topology,
+        cleanup,
+        warnings: mesh.warnings,
+    })
+}
+
+fn topology_checked(path: &Path, positions: &[DVec3], faces: &[[u32; 3]], input_index: &[u32], prep: &Preparation, welded: usize) -> Result<Topology, Error> {
+    Topology::build(positions.len(), faces).map_err(|e| {
+        let msg = match &e {
+            TopologyError::NonManifoldEdge { a, b, faces } => format!(
+                "non-manifold edge between vertices {} and {}: shared by {} faces (first: face {}){}",
+                input_index[*a as usize],
+                input_index[*b as usize],
+                faces.len(),
+                faces[0],
+                if prep.repair { "" } else { " (--repair removes the fewest faces that resolve it)" }
+            ),
+            TopologyError::InconsistentWinding { a, b, faces } => format!(
+                "inconsistent winding: faces {} and {} both run along the edge from vertex {} to vertex {}{}",
+                faces[0],
+                faces[1],
+                input_index[*a as usize],
+                input_index[*b as usize],
+                if prep.repair { "" } else { " (--repair winds each component consistently)" }
+            ),
+            TopologyError::NonManifoldVertex { v } => {
+                let weld = if welded > 0 { "; or --no-weld: welding coincident vertices may have joined two sheets here" } else { "" };
+                format!(
+                    "non-manifold vertex {}: its faces form more than one fan{}{}",
+                    input_index[*v as usize],
+                    if prep.repair { "" } else { " (--repair splits it into one vertex per fan" },
+                    if prep.repair { String::new() } else { format!("{weld})") }
+                )
+            }
+        };
+        input_err(path, msg)
+    })
+}
+
+/// Faces around each vertex, as CSR arrays (start, faces).
+pub fn vertex_faces(nv: usize, faces: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let mut start = vec![0u32; nv + 1];
+    for f in faces {
+        for &v in f {
+            start[v as usize + 1] += 1;
+        }
+    }
+    for i in 0..nv {
+        start[i + 1] += start[i];
+    }
+    let mut fill = start.clone();
+    let mut vf = vec![0u32; start[nv] as usize];
+    for (fi, f) in faces.iter().enumerate() {
+        for &v in f {
+            vf[fill[v as usize] as usize] = fi as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    (start, vf)
+}
+
+/// A dense mesh as the checks use it: unit face normals, faces around each vertex (CSR) and the
+/// pinched vertices, whose own face normals admit no common direction.
+pub struct DenseData {
+    pub pos: Vec<DVec3>,
+    pub faces: Vec<[u32; 3]>,
+    pub normal: Vec<DVec3>,
+    pub vf_start: Vec<u32>,
+    pub vf: Vec<u32>,
+    pub pinched: Vec<bool>,
+}
+
+impl DenseData {
+    pub fn new(pos: &[DVec3], faces: &[[u32; 3]]) -> DenseData {
+        let nv = pos.len();
+        let normal: Vec<DVec3> = faces
+            .iter()
+            .map(|f| face_normal(pos[f[0] as usize], pos[f[1] as usize], pos[f[2] as usize]))
+            .collect();
+        let (vf_start, vf) = vertex_faces(nv, faces);
+        let pinched = (0..nv)
+            .into_par_iter()
+            .map(|v| {
+                let ns: Vec<DVec3> =
+                    vf[vf_start[v] as usize..vf_start[v + 1] as usize].iter().map(|&f| normal[f as usize]).collect();
+                let mean = ns.iter().copied().sum::<DVec3>().normalize_or_zero();
+                if ns.iter().all(|n| n.dot(mean) > 0.0) {
+                    return false;
+                }
+                maxmin_direction(&ns).is_none()
+            })
+            .collect();
+        DenseData { pos: pos.to_vec(), faces: faces.to_vec(), normal, vf_start, vf, pinched }
+    }
+
+    pub fn faces_of(&self, v: u32) -> &[u32] {
+        &self.vf[self.vf_start[v as usize] as usize..self.vf_start[v as usize + 1] as usize]
+    }
+    /// Unit normals of the faces around `v` (condition (4) of a vertex).
+    pub fn vertex_normals(&self, v: u32, out: &mut Vec<DVec3>) {
+        out.clear();
+        out.extend(self.faces_of(v).iter().map(|&f| self.normal[f as usize]));
+    }
+    /// Unit normals of the (one or two) faces on edge (a, b).
+    pub fn edge_normals(&self, a: u32, b: u32, out: &mut Vec<DVec3>) {
+        out.clear();
+        for &f in self.faces_of(a) {
+            if self.faces[f as usize].contains(&b) {
+                out.push(self.normal[f as usize]);
+            }
+        }
+    }
+}
+
+
+// ---------------------------------------------------------------------------------------------
+// Output
+
+/// Writes `bytes` to `path` atomically: a temporary file beside it, then a rename, so that a
+/// failed run leaves no partial file. A target that exists and is not a regular file (a device
+/// such as `/dev/null`, a FIFO) is written in place: renaming over it would replace it.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), Error> {
+    use std::io::Write;
+    let out_err = |e: std::io::Error| Error::Output { path: path.display().to_string(), msg: e.to_string() };
+    if let Ok(meta) = std::fs::metadata(path) {
+        if !meta.is_file() {
+            if meta.is_dir() {
+                return Err(Error::Output { path: path.display().to_string(), msg: "is a directory".into() });
+            }
+            let mut f = std::fs::OpenOptions::new().write(true).open(path).map_err(out_err)?;
+            return f.write_all(bytes).map_err(out_err);
+        }
+    }
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = path.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_else(|| "out".into());
+    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
+    let res = (|| -> std::io::Result<()> {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    res.map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        out_err(e)
+    })
+}
+
+/// OBJ text with `v`, one `vn` per `v`, and `f v//vn` (no `vn` and `f v` when `normals` is
+/// empty). Header lines become comments; a line that already is one (the settings) stays as it is.
+pub fn obj_with_normals(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3]], header: &str) -> String {
+    use std::fmt::Write;
+    let mut s = String::with_capacity(64 * (positions.len() + faces.len()));
+    for line in header.lines() {
+        if line.starts_with('#') {
+            let _ = writeln!(s, "{line}");
+        } else {
+            let _ = writeln!(s, "# {line}");
+        }
+    }
+    // Shortest round-trip decimal: reading the file back gives the very numbers checked.
+    for p in positions {
+        let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);
+    }
+    for n in normals {
+        let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
+    }
+    for f in faces {
+        if normals.is_empty() {
+            let _ = writeln!(s, "f {} {} {}", f[0] + 1, f[1] + 1, f[2] + 1);
+        } else {
+            let _ = writeln!(s, "f {0}//{0} {1}//{1} {2}//{2}", f[0] + 1, f[1] + 1, f[2] + 1);
+        }
+    }
+    s
+}
+
+/// The bytes as they go to `path`: gzip-compressed when its name ends in `.gz`.
+pub fn maybe_gzip(path: &Path, bytes: Vec<u8>) -> Vec<u8> {
+    if !path.to_string_lossy().ends_with(".gz") {
+        return bytes;
+    }
+    use std::io::Write;
+    let mut enc = flate2::GzBuilder::new().write(Vec::new(), flate2::Compression::best());
+    // Writing to memory cannot fail.
+    enc.write_all(&bytes).expect("gzip to memory");
+    enc.finish().expect("gzip to memory")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn atomic_write_keeps_special_files() {
+        // Writing to /dev/null must not replace the device with a regular file.
+        write_atomic(Path::new("/dev/null"), b"hello").unwrap();
+        let meta = std::fs::metadata("/dev/null").unwrap();
+        assert!(!meta.is_file(), "/dev/null must stay a device");
+        let dir = std::env::temp_dir().join(format!("dispdec-atomic-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("a.txt");
+        write_atomic(&p, b"one").unwrap();
+        write_atomic(&p, b"two").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"two");
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1, "no temporary file left");
+        assert!(write_atomic(&dir, b"x").is_err(), "a directory is refused");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn tristrip_decoding_alternates_winding() {
+        let dir = std::env::temp_dir().join(format!("dispdec-strip-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("s.ply");
+        // 0--2--4
+        // | /| /|     strip 0 1 2 3 4 5 gives (0,1,2) (2,1,3) (2,3,4) (4,3,5)
+        // 1--3--5
+        let text = "ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\nproperty float y\nproperty float z\n\
+                    element tristrips 1\nproperty list int int vertex_indices\nend_header\n\
+                    0 1 0\n0 0 0\n1 1 0\n1 0 0\n2 1 0\n2 0 0\n6 0 1 2 3 4 5\n";
+        std::fs::write(&p, text).unwrap();
+        let m = load_raw(&p).unwrap();
+        assert_eq!(m.faces, vec![[0, 1, 2], [2, 1, 3], [2, 3, 4], [4, 3, 5]]);
+        let d = check_and_compact(&p, m).unwrap();
+        assert_eq!(d.faces.len(), 4);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
