@@ -87,6 +87,14 @@ impl Atlas {
         Some((face, [1.0 - u - v, u, v], inside))
     }
 
+    /// Texture coordinates of corner `k` (0, 1, 2) of `face`, u right and v up in [0, 1] (the
+    /// OBJ and Blender convention; glTF's v runs down: 1 − v).
+    pub fn uv_up(&self, face: u32, k: usize) -> (f64, f64) {
+        let (u, v) = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)][k];
+        let (x, y) = self.position(face, u, v);
+        (x / self.size as f64, 1.0 - y / self.size as f64)
+    }
+
     /// Texel-space position (continuous, texel centres at +0.5) of barycentric (u, v) on `face`.
     pub fn position(&self, face: u32, u: f64, v: f64) -> (f64, f64) {
         let cell = face / 2;
@@ -161,17 +169,7 @@ pub fn fold_image(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: No
     let atlas = Atlas::new(base.faces.len(), size);
     let n = atlas.size as usize;
     let acc: Vec<AtomicU32> = (0..n * n).map(|_| AtomicU32::new(0)).collect();
-    let bvh = Bvh::build(&base.positions, &base.faces);
-    let painter = Painter { atlas: &atlas, base, bvh: &bvh, mode, dmax, acc: &acc };
-    (0..dense.faces.len()).into_par_iter().for_each_init(
-        || (Scratch::default(), Vec::new(), Tris::default()),
-        |(scratch, near, tris), df| {
-            let t = dense.faces[df];
-            let [Some(m0), Some(m1), Some(m2)] = t.map(|v| maps[v as usize]) else { return };
-            let p = t.map(|v| dense.pos[v as usize]);
-            painter.draw(p, [m0, m1, m2], dense.normal[df], MAX_SPLIT, scratch, near, tris);
-        },
-    );
+    paint(dense, base, maps, mode, dmax, &atlas, &acc, None);
     let mut counts = vec![OUTSIDE; n * n];
     let mut per_face = vec![[0u32; 4]; base.faces.len()];
     for py in 0..atlas.size {
@@ -192,6 +190,40 @@ pub fn fold_image(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: No
     FoldImage { atlas, counts, per_face }
 }
 
+/// Draws every dense triangle with three maps: counts into `acc`, and with `owner`, the
+/// lowest dense face covering each texel.
+#[allow(clippy::too_many_arguments)]
+fn paint(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMode, dmax: f64, atlas: &Atlas, acc: &[AtomicU32], owner: Option<&[[AtomicU32; 2]]>) {
+    let bvh = Bvh::build(&base.positions, &base.faces);
+    let painter = Painter { atlas, base, bvh: &bvh, mode, dmax, acc, owner };
+    (0..dense.faces.len()).into_par_iter().for_each_init(
+        || (Scratch::default(), Vec::new(), Tris::default()),
+        |(scratch, near, tris), df| {
+            let t = dense.faces[df];
+            let [Some(m0), Some(m1), Some(m2)] = t.map(|v| maps[v as usize]) else { return };
+            let p = t.map(|v| dense.pos[v as usize]);
+            painter.draw(df as u32, p, [m0, m1, m2], dense.normal[df], MAX_SPLIT, scratch, near, tris);
+        },
+    );
+}
+
+/// Which dense triangles' images cover each texel of the atlas: the lowest and the highest
+/// dense face id (the same where one does; `u32::MAX` for both where none does; where the
+/// image folds, the two sheets): the fold image's rasterisation, kept per texel.
+pub struct Owners {
+    pub atlas: Atlas,
+    pub owner: Vec<[u32; 2]>,
+}
+
+pub fn cover_owners(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMode, dmax: f64, size: u32) -> Owners {
+    let atlas = Atlas::new(base.faces.len(), size);
+    let n = atlas.size as usize;
+    let acc: Vec<AtomicU32> = (0..n * n).map(|_| AtomicU32::new(0)).collect();
+    let owner: Vec<[AtomicU32; 2]> = (0..n * n).map(|_| [AtomicU32::new(u32::MAX), AtomicU32::new(u32::MAX)]).collect();
+    paint(dense, base, maps, mode, dmax, &atlas, &acc, Some(&owner));
+    Owners { atlas, owner: owner.into_iter().map(|[a, b]| [a.into_inner(), b.into_inner()]).collect() }
+}
+
 struct Painter<'a> {
     atlas: &'a Atlas,
     base: &'a Base,
@@ -199,6 +231,7 @@ struct Painter<'a> {
     mode: NormalMode,
     dmax: f64,
     acc: &'a [AtomicU32],
+    owner: Option<&'a [[AtomicU32; 2]]>,
 }
 
 impl Painter<'_> {
@@ -210,6 +243,7 @@ impl Painter<'_> {
     #[allow(clippy::too_many_arguments)]
     fn draw(
         &self,
+        df: u32,
         p: [glam::DVec3; 3],
         m: [Map; 3],
         normal: glam::DVec3,
@@ -221,7 +255,7 @@ impl Painter<'_> {
         if m[0].face == m[1].face && m[1].face == m[2].face {
             let f = m[0].face;
             let pts = m.map(|mi| self.atlas.position(f, mi.bary[1], mi.bary[2]));
-            rasterise(self.atlas, f, pts, self.acc);
+            rasterise(self.atlas, f, pts, self.acc, self.owner.map(|o| (o, df)));
             return;
         }
         if depth > 0 {
@@ -238,7 +272,7 @@ impl Painter<'_> {
                     ([mid[2], mid[1], p[2]], [c, b, m[2]]),
                     ([mid[0], mid[1], mid[2]], [a, b, c]),
                 ] {
-                    self.draw(q, mm, normal, depth - 1, scratch, near, tris);
+                    self.draw(df, q, mm, normal, depth - 1, scratch, near, tris);
                 }
                 return;
             }
@@ -261,14 +295,15 @@ impl Painter<'_> {
             };
             let (Some(a), Some(b), Some(cc)) = (uv(0), uv(1), uv(2)) else { continue };
             let pts = [self.atlas.position(f, a.0, a.1), self.atlas.position(f, b.0, b.1), self.atlas.position(f, cc.0, cc.1)];
-            rasterise(self.atlas, f, pts, self.acc);
+            rasterise(self.atlas, f, pts, self.acc, self.owner.map(|o| (o, df)));
         }
     }
 }
 
 /// Adds 1 to every texel of face `f`'s chart whose centre lies in the triangle `pts` (either
-/// orientation; a centre on a shared edge belongs to one side only: the top-left rule).
-fn rasterise(atlas: &Atlas, f: u32, mut pts: [(f64, f64); 3], acc: &[AtomicU32]) {
+/// orientation; a centre on a shared edge belongs to one side only: the top-left rule), and
+/// with `owner` records dense face `df` there (the lowest and the highest are kept).
+fn rasterise(atlas: &Atlas, f: u32, mut pts: [(f64, f64); 3], acc: &[AtomicU32], owner: Option<(&[[AtomicU32; 2]], u32)>) {
     let area = (pts[1].0 - pts[0].0) * (pts[2].1 - pts[0].1) - (pts[1].1 - pts[0].1) * (pts[2].0 - pts[0].0);
     if area == 0.0 || !area.is_finite() {
         return;
@@ -301,6 +336,12 @@ fn rasterise(atlas: &Atlas, f: u32, mut pts: [(f64, f64); 3], acc: &[AtomicU32])
             }
             if atlas.texel(px as u32, py as u32).map(|t| t.0) == Some(f) {
                 acc[(py * n + px) as usize].fetch_add(1, Ordering::Relaxed);
+                if let Some((o, df)) = owner {
+                    let slot = &o[(py * n + px) as usize];
+                    slot[0].fetch_min(df, Ordering::Relaxed);
+                    // u32::MAX + 1 wraps to 0: the highest id, with MAX still meaning none.
+                    slot[1].fetch_update(Ordering::Relaxed, Ordering::Relaxed, |h| (h == u32::MAX || df > h).then_some(df)).ok();
+                }
             }
         }
     }

@@ -10,7 +10,9 @@
 //! - [`eval`]: the [`eval::Evaluator`] trait, the CPU evaluator, primary search, flip and tear tests;
 //! - [`local`]: the local test of one candidate collapse;
 //! - [`bench`]: `dispdec bench`, CPU and GPU paths side by side, with meshoptimizer as reference;
-//! - [`bake`]: the displacement map over the atlas (PNG16 + sidecar, PFM);
+//! - [`bake`]: the displacement map over the atlas, the guarantee's inverse (EXR, PFM, PNG16;
+//!   scalar, normalized and vector conventions);
+//! - [`export`]: the binary glTF of a base with its map;
 //! - [`bvh`]: a triangle BVH (distance and line queries);
 //! - [`decimate`]: queue, association, batch scheduler, commit;
 //! - [`gpu`]: the only place that calls wgpu (device, shell kernel context, buffers);
@@ -31,6 +33,7 @@ pub mod bench;
 pub mod bvh;
 pub mod decimate;
 pub mod eval;
+pub mod export;
 pub mod fold;
 pub mod geometry;
 pub mod gpu;

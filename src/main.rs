@@ -69,6 +69,16 @@ enum Normals {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
+enum MapKind {
+    /// d along the unnormalised interpolated direction N(X) (dispdec's own).
+    Scalar,
+    /// d·|N(X)|: the distance along the normalised interpolated normal (engines, viewers).
+    Normalized,
+    /// The object-space vector d·N(X) in RGB (Blender's Displace, RGB to XYZ).
+    Vector,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
 enum Backend {
     Cpu,
     Gpu,
@@ -187,8 +197,9 @@ enum Cmd {
         #[arg(long)]
         threads: Option<usize>,
     },
-    /// Bake the displacement map of HIGH over BASE's atlas: DISP.png (16-bit, scale and offset
-    /// in DISP.png.json) or DISP.pfm (32-bit float).
+    /// Bake the displacement map of HIGH over BASE's atlas: DISP.exr or DISP.pfm (32-bit float)
+    /// or DISP.png (16-bit), with DISP.ext.json (kind, quantisation) and DISP.obj (BASE with the
+    /// map's UVs) beside it.
     Bake {
         high: PathBuf,
         base: PathBuf,
@@ -204,6 +215,9 @@ enum Cmd {
         /// bounding-box diagonal of HIGH).
         #[arg(long)]
         dmax: Option<f64>,
+        /// What a texel holds.
+        #[arg(long, value_enum, default_value = "scalar")]
+        kind: MapKind,
         /// Normal mode (default: the one BASE was made with, else interpolated).
         #[arg(long, value_enum)]
         normals: Option<Normals>,
@@ -227,6 +241,17 @@ enum Cmd {
         /// Normal mode (default: the one BASE was made with, else interpolated).
         #[arg(long, value_enum)]
         normals: Option<Normals>,
+    },
+    /// Write a binary glTF (.glb): BASE with normals, UVs and the map DISP as a 16-bit PNG
+    /// texture (normalized convention, in the material's extras), and with --levels the mesh
+    /// rebuilt at that level as a second node.
+    Export {
+        base: PathBuf,
+        disp: PathBuf,
+        #[arg(short, long)]
+        output: PathBuf,
+        #[arg(long)]
+        levels: Option<u32>,
     },
     /// Render meshes side by side (headless wgpu; lavapipe works) into a PNG.
     Render {
@@ -436,17 +461,25 @@ fn run(cli: Cli) -> Result<i32> {
             }
             Ok(if v.valid { 0 } else { 1 })
         }
-        Cmd::Bake { high, base, map, output, resolution, dmax, normals, prep } => {
-            let job = dispdec::run::BakeJob { high, base, map, output, resolution, flags: flags(&prep, normals, dmax, false) };
+        Cmd::Bake { high, base, map, output, resolution, dmax, kind, normals, prep } => {
+            let kind = match kind {
+                MapKind::Scalar => dispdec::bake::Kind::Scalar,
+                MapKind::Normalized => dispdec::bake::Kind::Normalized,
+                MapKind::Vector => dispdec::bake::Kind::Vector,
+            };
+            let job = dispdec::run::BakeJob { high, base, map, output, resolution, kind, flags: flags(&prep, normals, dmax, false) };
             let r = dispdec::run::bake(&job)?;
             say.warnings(&r.warnings);
             say.line(&format!(
-                "wrote {}: {} of {} texels carry d ({} normals, dmax {:.4}; {:.1} s)",
+                "wrote {} ({} map) and {}: {} of {} texels carry d ({} normals, dmax {:.4}; the pair is {}; {:.1} s)",
                 job.output.display(),
+                r.kind.name(),
+                r.uv_mesh.display(),
                 r.defined,
                 r.texels,
                 if r.normals == NormalMode::Constant { "constant" } else { "interpolated" },
                 r.dmax,
+                if r.verdict.valid { "valid" } else { "INVALID: the map folds or has holes where the base does" },
                 r.seconds
             ));
             if let Some(a) = r.agreement {
@@ -471,6 +504,20 @@ fn run(cli: Cli) -> Result<i32> {
                 }
             }
             say.line(&format!("wrote {}", output.display()));
+            Ok(0)
+        }
+        Cmd::Export { base, disp, output, levels } => {
+            let (e, warnings) = dispdec::run::export(&base, &disp, &output, levels)?;
+            say.warnings(&warnings);
+            say.line(&format!(
+                "wrote {} ({} bytes: the {}-face base with a {}x{} 16-bit normalized map{})",
+                output.display(),
+                e.bytes,
+                e.base_faces,
+                e.texture.size,
+                e.texture.size,
+                e.rebuilt_faces.map(|f| format!(", and the {f}-face mesh rebuilt at level {}", levels.unwrap_or(0))).unwrap_or_default()
+            ));
             Ok(0)
         }
         Cmd::Render { meshes, output, size, yaw, pitch } => {

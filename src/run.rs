@@ -8,6 +8,7 @@ use crate::gpu_eval::{BandStats, GpuEvaluator};
 use crate::mapfile::{MapFile, Record, STATUS_MAPPED, STATUS_PINCHED, STATUS_UNREFERENCED};
 use crate::mesh::repair::{Cleanup, Preparation};
 use crate::mesh::{self, write_atomic};
+use crate::bake::Kind;
 use crate::settings::{Flags, Settings};
 use crate::Error;
 use std::path::PathBuf;
@@ -613,6 +614,7 @@ pub struct BakeJob {
     pub map: Option<PathBuf>,
     pub output: PathBuf,
     pub resolution: u32,
+    pub kind: Kind,
     pub flags: Flags,
 }
 
@@ -625,17 +627,29 @@ pub struct BakeReport {
     pub seconds: f64,
     pub normals: NormalMode,
     pub dmax: f64,
+    pub kind: Kind,
+    /// The base mesh with the map's UVs, written beside the map.
+    pub uv_mesh: PathBuf,
+    /// The check of the pair the map was baked from (a map of an invalid base folds or has
+    /// holes where the base does).
+    pub verdict: crate::validate::Verdict,
+    /// How many texels came from the covering dense triangle, from a gap fill, or have no d.
+    pub sources: crate::bake::BakeSources,
     pub agreement: Option<MapAgreement>,
     pub warnings: Vec<String>,
 }
 
-/// `dispdec bake HIGH BASE.obj [--map BASE.map] -o DISP.(png|pfm)`.
+/// `dispdec bake HIGH BASE.obj [--map BASE.map] -o DISP.(exr|pfm|png) [--kind K]`: the map, its
+/// JSON sidecar, and DISP.obj (the base with one `vt` per face corner).
 pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
     let t0 = Instant::now();
     let out = &job.output;
     let ext = out.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
-    if ext != "png" && ext != "pfm" {
-        return Err(Error::Usage(format!("{}: the displacement map is written as .png (16-bit + .png.json) or .pfm (32-bit float)", out.display())));
+    if !["png", "pfm", "exr"].contains(&ext.as_str()) {
+        return Err(Error::Usage(format!("{}: the displacement map is written as .exr or .pfm (32-bit float) or .png (16-bit + .png.json)", out.display())));
+    }
+    if ext == "png" && job.kind == Kind::Vector {
+        return Err(Error::Usage(format!("{}: a vector map has three channels; write it as .exr or .pfm", out.display())));
     }
     check_resolution(job.resolution)?;
     check_dmax(job.flags.dmax)?;
@@ -655,7 +669,9 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
         }
         None => None,
     };
-    let map = crate::bake::bake(&dense, b, normals, dmax, job.resolution);
+    // The primaries of the whole scan over the whole base: the map inverts exactly these.
+    let (verdict, maps) = crate::validate::validate_on(&dense, b, normals, dmax, false, false, None)?;
+    let (map, sources) = crate::bake::bake(&dense, b, &maps, normals, dmax, job.resolution);
     let agreement = per_vertex.map(|m| {
         let mut diffs = Vec::new();
         let mut missing = 0;
@@ -668,23 +684,48 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
         let rms = (diffs.iter().map(|x| x * x).sum::<f64>() / diffs.len().max(1) as f64).sqrt();
         MapAgreement { vertices: diffs.len() + missing, missing, rms, max: diffs.iter().copied().fold(0.0, f64::max) }
     });
-    if ext == "pfm" {
-        write_atomic(out, &map.to_pfm())?;
-    } else {
-        let (png, q) = map.to_png16();
-        let side = out.with_extension("png.json");
-        write_atomic(&side, serde_json::to_string_pretty(&q).expect("sidecar").as_bytes())?;
-        if let Err(e) = write_atomic(out, &png) {
-            let _ = std::fs::remove_file(&side);
-            return Err(e);
-        }
+    let (bytes, side) = match ext.as_str() {
+        "pfm" => (map.to_pfm(job.kind), map.sidecar(job.kind)),
+        "exr" => (map.to_exr(job.kind, dmax).map_err(|e| Error::Output { path: out.display().to_string(), msg: e })?, map.sidecar(job.kind)),
+        _ => map.to_png16(job.kind),
+    };
+    let uv_mesh = out.with_extension("obj");
+    let same = |a: &std::path::Path, b: &std::path::Path| match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => a == b,
+    };
+    if same(&uv_mesh, &job.base) || same(&uv_mesh, &job.high) {
+        return Err(Error::Usage(format!(
+            "{}: the base with the map's UVs goes to {}, which is an input; name the map otherwise (e.g. {})",
+            out.display(),
+            uv_mesh.display(),
+            out.with_file_name(format!("{}-disp.{ext}", out.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default())).display()
+        )));
     }
+    let header = format!(
+        "dispdec base mesh with the UVs of {} ({} map, {} texels a side; vt: u right, v up)\n{}",
+        out.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default(),
+        job.kind.name(),
+        map.atlas.size,
+        loaded.settings.as_ref().map(|s| s.obj_line()).unwrap_or_default()
+    );
+    let obj = mesh::obj_with_uvs(&b.positions, &b.directions, &b.faces, |f, k| map.atlas.uv_up(f, k), &header);
+    let side_json = serde_json::to_string_pretty(&side).expect("sidecar");
+    mesh::write_all_atomic(&[
+        (crate::bake::sidecar_path(out).as_path(), side_json.as_bytes()),
+        (uv_mesh.as_path(), obj.as_bytes()),
+        (out.as_path(), &bytes),
+    ])?;
     Ok(BakeReport {
         defined: map.defined(),
         texels: map.d.len(),
         seconds: t0.elapsed().as_secs_f64(),
         normals,
         dmax,
+        kind: job.kind,
+        uv_mesh,
+        verdict,
+        sources,
         agreement,
         warnings,
     })
@@ -744,6 +785,29 @@ pub fn reconstruct(
 }
 
 // ---------------------------------------------------------------------------------------------
+// dispdec export
+
+/// `dispdec export BASE.obj DISP -o OUT.glb [--levels L]`: the binary glTF of the base (its
+/// settings give the normal mode) with the scalar map DISP and, with `levels`, the mesh rebuilt
+/// at that level.
+pub fn export(base: &std::path::Path, disp: &std::path::Path, out: &std::path::Path, levels: Option<u32>) -> Result<(crate::export::Exported, Vec<String>), Error> {
+    if out.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()) != Some("glb".into()) {
+        return Err(Error::Usage(format!("{}: export writes binary glTF (.glb)", out.display())));
+    }
+    if levels.is_some_and(|l| l > 6) {
+        return Err(Error::Usage(format!("--levels must be 0 to 6, got {}", levels.unwrap_or(0))));
+    }
+    let loaded = load_base_with_directions(base)?;
+    let r = crate::settings::resolve(&Flags::default(), loaded.settings.as_ref(), &base.display().to_string());
+    let b = &loaded.base;
+    let map = crate::bake::DispMap::read(disp, b.faces.len())?;
+    let rebuilt = levels.map(|l| (l, crate::reconstruct::reconstruct(b, &map, l, r.normals)));
+    let (bytes, info) = crate::export::export_glb(b, r.normals, &map, rebuilt.as_ref().map(|(l, m)| (*l, m)));
+    write_atomic(out, &bytes)?;
+    Ok((info, loaded.warnings))
+}
+
+// ---------------------------------------------------------------------------------------------
 // dispdec render
 
 /// `dispdec render MESH... -o VIEW.png`: returns the adapter used.
@@ -754,10 +818,17 @@ pub fn render(meshes: &[PathBuf], out: &std::path::Path, view: crate::render::Vi
     if !(16..=4096).contains(&view.size) {
         return Err(Error::Usage(format!("--size must be between 16 and 4096, got {}", view.size)));
     }
-    let loaded = meshes
-        .iter()
-        .map(|p| mesh::load_base(p).map(|b| (b.positions, b.faces)))
-        .collect::<Result<Vec<_>, _>>()?;
+    let mut loaded = Vec::new();
+    for p in meshes {
+        if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb")) {
+            // A binary glTF: each of its meshes, side by side.
+            let bytes = std::fs::read(p).map_err(|e| Error::Input { path: p.display().to_string(), msg: format!("cannot read file: {e}") })?;
+            loaded.extend(crate::export::read_glb_meshes(&bytes).map_err(|msg| Error::Input { path: p.display().to_string(), msg })?);
+        } else {
+            let b = mesh::load_base(p)?;
+            loaded.push((b.positions, b.faces));
+        }
+    }
     let gpu = crate::gpu::Gpu::new(wgpu::Backends::PRIMARY)?;
     let (w, h, rgba) = crate::render::render(&gpu, &loaded, &view)?;
     write_atomic(out, &crate::render::png_rgba(w, h, &rgba))?;

@@ -81,7 +81,7 @@ fn horse_rebuilt_at_level_five_matches_the_scan() {
     let base = dir.join("h.obj");
     let map = dir.join("h.map");
     ok(&["decimate", horse.to_str().unwrap(), "-o", base.to_str().unwrap(), "--map", map.to_str().unwrap(), "-q"]);
-    let disp = dir.join("h.pfm");
+    let disp = dir.join("h-disp.pfm");
     let said = ok(&["bake", horse.to_str().unwrap(), base.to_str().unwrap(), "--map", map.to_str().unwrap(), "-o", disp.to_str().unwrap()]);
     // The baked map reproduces the decimator's per-vertex d (RMS well below 1 % of dmax).
     let rms: f64 = said
@@ -90,7 +90,11 @@ fn horse_rebuilt_at_level_five_matches_the_scan() {
         .and_then(|t| t.split(',').next())
         .and_then(|t| t.trim().parse().ok())
         .unwrap_or_else(|| panic!("no agreement line: {said}"));
-    assert!(rms < 2.5e-4, "{said}");
+    // Measured: RMS 2.1e-5, max 1.6e-3 (where the image folds and two sheets cover a point);
+    // bounds 2.5x and 2x that.
+    assert!(rms < 5e-5, "{said}");
+    let max: f64 = said.split(", max ").nth(1).and_then(|t| t.split(';').next()).and_then(|t| t.trim().parse().ok()).unwrap();
+    assert!(max < 3.2e-3, "{said}");
     assert!(said.contains(" 0 where the map has no d"), "{said}");
     let b = dispdec::run::load_base_with_directions(&base).unwrap().base;
     let map = DispMap::read(&disp, b.faces.len()).unwrap();
@@ -104,8 +108,148 @@ fn horse_rebuilt_at_level_five_matches_the_scan() {
         assert!(rms < last_rms, "the error falls with every level: {d:?}");
         last_rms = rms;
         if level == 5 {
-            assert!(d.rms_to_scan <= 1e-3 && d.rms_from_scan <= 1e-3, "{d:?}");
-            assert!(d.hausdorff_to_scan <= 1e-2 && d.hausdorff_from_scan <= 1e-2, "{d:?}");
+            // Measured: RMS 1.6e-5 / 1.1e-4, Hausdorff 1.3e-3 / 1.7e-3 (to / from the scan);
+            // bounds about 3x that, well inside the paper's 0.1 % and 1 %.
+            assert!(d.rms_to_scan <= 5e-5 && d.rms_from_scan <= 3e-4, "{d:?}");
+            assert!(d.hausdorff_to_scan <= 4e-3 && d.hausdorff_from_scan <= 5e-3, "{d:?}");
+        }
+    }
+}
+
+/// The map's UVs, the EXR, and the three conventions on the sphere fixture: every format and
+/// kind holds the same displacement, and DISP.obj lets any tool find it.
+#[test]
+fn bake_writes_uvs_exr_and_the_three_kinds() {
+    let dir = tempdir("bake-kinds");
+    let (high, base) = sphere_files(&dir, bumpy);
+    let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let bake = |name: &str, kind: &str| {
+        let p = dir.join(name);
+        ok(&["bake", &s(&high), &s(&base), "-o", &s(&p), "--resolution", "256", "--kind", kind]);
+        p
+    };
+    let (spfm, sexr, npfm, vpfm, vexr) =
+        (bake("s.pfm", "scalar"), bake("s.exr", "scalar"), bake("n.pfm", "normalized"), bake("v.pfm", "vector"), bake("v.exr", "vector"));
+    // DISP.obj: the base with one vt per corner, in [0, 1], and f v/vt/vn.
+    let uv = std::fs::read_to_string(dir.join("s.obj")).unwrap();
+    let vts: Vec<(f64, f64)> = uv
+        .lines()
+        .filter_map(|l| l.strip_prefix("vt "))
+        .map(|t| {
+            let c: Vec<f64> = t.split_whitespace().map(|x| x.parse().unwrap()).collect();
+            (c[0], c[1])
+        })
+        .collect();
+    assert_eq!(vts.len(), 3 * 20);
+    assert!(vts.iter().all(|&(u, v)| (0.0..=1.0).contains(&u) && (0.0..=1.0).contains(&v)));
+    assert!(uv.lines().any(|l| l.starts_with("f 1/1/1 ")) || uv.lines().filter(|l| l.starts_with("f ")).all(|l| l.matches('/').count() == 6));
+    let b = dispdec::run::load_base_with_directions(&dir.join("s.obj")).unwrap().base;
+    let b0 = dispdec::run::load_base_with_directions(&base).unwrap().base;
+    assert_eq!((&b.positions, &b.faces, &b.directions), (&b0.positions, &b0.faces, &b0.directions), "DISP.obj is the base");
+    // The corner's UV finds the texel of that corner: the map read there equals DispMap::sample.
+    let m = DispMap::read(&spfm, 20).unwrap();
+    for f in 0..20u32 {
+        let (u, v) = vts[3 * f as usize + 1];
+        let (x, y) = ((u * m.atlas.size as f64) as u32, ((1.0 - v) * m.atlas.size as f64) as u32);
+        let (x, y) = (x.min(m.atlas.size - 1), y.min(m.atlas.size - 1));
+        assert_eq!(m.atlas.texel_any(x, y).map(|t| t.0), Some(f), "corner 1 of face {f} lies on its own side of the cell");
+    }
+    // EXR and PFM: the same floats.
+    let e = DispMap::read(&sexr, 20).unwrap();
+    assert!(m.d.iter().zip(&e.d).all(|(a, b)| a.to_bits() == b.to_bits()), "scalar EXR = PFM");
+    // normalized = d·|N(X)|, vector = d·N(X), texel by texel (f32 rounding).
+    let pfm = |p: &std::path::Path| -> Vec<f32> {
+        let bytes = std::fs::read(p).unwrap();
+        let end = bytes.iter().enumerate().filter(|(_, &c)| c == b'\n').nth(2).unwrap().0 + 1;
+        bytes[end..].chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect()
+    };
+    let (nv, vv) = (pfm(&npfm), pfm(&vpfm));
+    let n = m.atlas.size as usize;
+    let mut checked = 0;
+    for row in 0..n {
+        for col in 0..n {
+            let d = m.d[row * n + col];
+            let Some((_, _, dir)) = dispdec::bake::texel_point(&m.atlas, &b0, dispdec::eval::NormalMode::Interpolated, col as u32, row as u32) else { continue };
+            let k = (n - 1 - row) * n + col; // PFM rows run bottom to top
+            if d.is_nan() {
+                assert!(nv[k].is_nan() && vv[3 * k].is_nan());
+                continue;
+            }
+            let want = d as f64 * dir.length();
+            assert!((nv[k] as f64 - want).abs() <= 1e-6 * want.abs() + 1e-9, "normalized at ({col}, {row})");
+            for c in 0..3 {
+                let want = d as f64 * dir[c];
+                assert!((vv[3 * k + c] as f64 - want).abs() <= 1e-6 * d.abs() as f64 + 1e-9, "vector at ({col}, {row})");
+            }
+            checked += 1;
+        }
+    }
+    assert!(checked > n * n / 2, "{checked}");
+    // The vector EXR: R, G, B as in the PFM, its kind in the header; dispdec reads scalar maps only.
+    let img = exr::prelude::read_all_flat_layers_from_file(&vexr).unwrap();
+    let layer = &img.layer_data[0];
+    let kind = layer.attributes.other.get(&exr::prelude::Text::new_or_panic("dispdec_kind"));
+    assert!(matches!(kind, Some(exr::meta::attribute::AttributeValue::Text(t)) if t.to_string() == "vector"), "{kind:?}");
+    let ch = |name: &str| layer.channel_data.list.iter().find(|c| c.name.to_string() == name).unwrap().sample_data.values_as_f32().collect::<Vec<f32>>();
+    let (r, g, bb) = (ch("R"), ch("G"), ch("B"));
+    for row in 0..n {
+        for col in 0..n {
+            let (i, k) = (row * n + col, (n - 1 - row) * n + col);
+            for (c, v) in [&r, &g, &bb].iter().enumerate() {
+                assert!(v[i].to_bits() == vv[3 * k + c].to_bits() || (v[i].is_nan() && vv[3 * k + c].is_nan()));
+            }
+        }
+    }
+    let err = DispMap::read(&vexr, 20).unwrap_err().to_string();
+    assert!(err.contains("vector map"), "{err}");
+    // A map named like the base would overwrite it with DISP.obj: refused, the base untouched.
+    let before = std::fs::read(&base).unwrap();
+    let o = run(&["bake", &s(&high), &s(&base), "-o", &s(&base.with_extension("pfm")), "--resolution", "64"]);
+    assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(std::fs::read(&base).unwrap(), before);
+}
+
+/// `dispdec export`: a .glb with the base, the texture and the rebuilt mesh, valid by the
+/// Khronos glTF-Validator.
+#[test]
+fn export_writes_a_glb_the_khronos_validator_accepts() {
+    let dir = tempdir("export");
+    let (high, base) = sphere_files(&dir, bumpy);
+    let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let disp = dir.join("d.pfm");
+    ok(&["bake", &s(&high), &s(&base), "-o", &s(&disp), "--resolution", "256"]);
+    let glb = dir.join("out.glb");
+    ok(&["export", &s(&base), &s(&disp), "-o", &s(&glb), "--levels", "2"]);
+    let bytes = std::fs::read(&glb).unwrap();
+    assert_eq!(&bytes[..4], b"glTF");
+    assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize, bytes.len());
+    let meshes = dispdec::export::read_glb_meshes(&bytes).unwrap();
+    assert_eq!(meshes.len(), 2);
+    assert_eq!((meshes[0].0.len(), meshes[0].1.len()), (60, 20), "the base, one vertex per corner");
+    assert_eq!(meshes[1].1.len(), 20 * 16, "the mesh rebuilt at level 2");
+    let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let doc: serde_json::Value = serde_json::from_slice(&bytes[20..20 + json_len]).unwrap();
+    let extras = &doc["materials"][0]["extras"]["dispdec_displacement"];
+    assert_eq!(extras["kind"], "normalized");
+    assert!(extras["scale"].as_f64().unwrap() > 0.0);
+    assert_eq!(doc["images"][0]["mimeType"], "image/png");
+    // The Khronos validator (npm gltf-validator; .ci/run installs it into target/).
+    let modules = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/gltf-validator/node_modules");
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/gltf-validate.js");
+    let o = std::process::Command::new("node").arg(&script).arg(&glb).env("NODE_PATH", &modules).output();
+    match o {
+        Ok(o) if o.status.code() != Some(2) && modules.join("gltf-validator").exists() => {
+            let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_else(|_| panic!("{}", String::from_utf8_lossy(&o.stdout)));
+            eprintln!("{report}");
+            assert_eq!(report["errors"], 0, "{report}");
+            assert_eq!(report["warnings"], 0, "{report}");
+        }
+        _ => {
+            let msg = format!("glTF-Validator not found at {}: npm install --prefix target/gltf-validator gltf-validator", modules.display());
+            if std::env::var("CI").map(|v| v == "true" || v == "1").unwrap_or(false) {
+                panic!("{msg} (CI=true: a missing tool is a failure)");
+            }
+            eprintln!("SKIPPED: {msg}");
         }
     }
 }

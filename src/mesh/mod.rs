@@ -468,6 +468,50 @@ pub fn obj_with_normals(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3
     s
 }
 
+/// OBJ text of a base mesh with one `vt` per face corner (`uv(face, corner)`), one `vn` per
+/// `v`, and `f v/vt/vn`: what other tools need to sample a map where dispdec wrote it.
+pub fn obj_with_uvs(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3]], uv: impl Fn(u32, usize) -> (f64, f64), header: &str) -> String {
+    use std::fmt::Write;
+    let mut s = String::with_capacity(96 * (positions.len() + faces.len()));
+    for line in header.lines().filter(|l| !l.is_empty()) {
+        if line.starts_with('#') {
+            let _ = writeln!(s, "{line}");
+        } else {
+            let _ = writeln!(s, "# {line}");
+        }
+    }
+    for p in positions {
+        let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);
+    }
+    for n in normals {
+        let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
+    }
+    for f in 0..faces.len() {
+        for k in 0..3 {
+            let (u, v) = uv(f as u32, k);
+            let _ = writeln!(s, "vt {u} {v}");
+        }
+    }
+    for (i, f) in faces.iter().enumerate() {
+        let t = 3 * i + 1;
+        let _ = writeln!(s, "f {}/{}/{} {}/{}/{} {}/{}/{}", f[0] + 1, t, f[0] + 1, f[1] + 1, t + 1, f[1] + 1, f[2] + 1, t + 2, f[2] + 1);
+    }
+    s
+}
+
+/// Writes several outputs, each atomically; if one fails, those already written are removed.
+pub fn write_all_atomic(files: &[(&Path, &[u8])]) -> Result<(), Error> {
+    for (i, (p, b)) in files.iter().enumerate() {
+        if let Err(e) = write_atomic(p, b) {
+            for (q, _) in &files[..i] {
+                let _ = std::fs::remove_file(q);
+            }
+            return Err(e);
+        }
+    }
+    Ok(())
+}
+
 /// The bytes as they go to `path`: gzip-compressed when its name ends in `.gz`.
 pub fn maybe_gzip(path: &Path, bytes: Vec<u8>) -> Vec<u8> {
     if !path.to_string_lossy().ends_with(".gz") {

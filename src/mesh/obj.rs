@@ -39,7 +39,9 @@ pub(super) fn load_obj(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
     let mut positions_text = String::new();
     let mut scanned: Vec<DVec3> = Vec::new();
     let mut normals_text = String::new();
-    let mut faces: Vec<Vec<Corner>> = Vec::new();
+    // Face corners, flat: face k is corners[face_start[k]..face_start[k + 1]].
+    let mut corners: Vec<Corner> = Vec::new();
+    let mut face_start: Vec<usize> = vec![0];
     let (mut nv, mut nn) = (0usize, 0usize);
     let mut settings = None;
     let mut lineno = 0usize;
@@ -93,7 +95,7 @@ pub(super) fn load_obj(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
                 nn += 1;
             }
             b"f" => {
-                let mut corners = Vec::with_capacity(4);
+                let first = corners.len();
                 for r in it {
                     let mut parts = r.split(|&c| c == b'/');
                     let vtok = parts.next().unwrap_or(b"");
@@ -108,17 +110,17 @@ pub(super) fn load_obj(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
                     let vn = parts.next().and_then(|t| parse_index(t, nn)).map(|i| i as u32);
                     corners.push(Corner { v: v as u32, vn });
                 }
-                if corners.len() < 3 {
-                    return Err(at(format!("face with {} vertices cannot be triangulated (needs at least 3)", corners.len())));
+                if corners.len() - first < 3 {
+                    return Err(at(format!("face with {} vertices cannot be triangulated (needs at least 3)", corners.len() - first)));
                 }
-                faces.push(corners);
+                face_start.push(corners.len());
             }
             // Materials, groups, smoothing, texture coordinates, lines, points, free-form
             // geometry, unknown statements: not geometry a decimator uses.
             _ => {}
         }
     }
-    let with_normals = nn > 0 && faces.iter().flatten().all(|c| c.vn.is_some());
+    let with_normals = nn > 0 && corners.iter().all(|c| c.vn.is_some());
     // The text tobj parses: geometry only, absolute 1-based indices.
     let mut text = positions_text;
     if with_normals {
@@ -128,9 +130,9 @@ pub(super) fn load_obj(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
     let mut seen = vec![false; nv];
     {
         use std::fmt::Write;
-        for f in &faces {
+        for w in face_start.windows(2) {
             text.push('f');
-            for c in f {
+            for c in &corners[w[0]..w[1]] {
                 match (with_normals, c.vn) {
                     (true, Some(n)) => {
                         let _ = write!(text, " {}//{}", c.v + 1, n + 1);
