@@ -482,6 +482,10 @@ fn run(cli: Cli) -> Result<i32> {
                 if r.verdict.valid { "valid" } else { "INVALID: the map folds or has holes where the base does" },
                 r.seconds
             ));
+            say.line(&format!(
+                "texels of the charts and gutters: {} from the dense triangle whose image covers them, {} in gaps of the projection (filled from the nearest crossing), {} without d (holes of the scan)",
+                r.sources.image, r.sources.gap, r.sources.none
+            ));
             if let Some(a) = r.agreement {
                 say.line(&format!(
                     "against the map's {} vertices: |d difference| RMS {:.3e}, max {:.3e}; {} where the map has no d",

@@ -174,7 +174,7 @@ mod tests {
             faces: vec![[0, 1, 2], [0, 3, 1]],
         };
         let atlas = Atlas::new(2, 64);
-        let map = DispMap { atlas, d: vec![0.5; (atlas.size * atlas.size) as usize], jump: f64::INFINITY };
+        let map = DispMap { atlas, d: vec![0.5; (atlas.size * atlas.size) as usize], dir: Vec::new(), jump: f64::INFINITY };
         let r0 = reconstruct(&base, &map, 0, NormalMode::Interpolated);
         assert_eq!(r0.positions, base.positions);
         assert_eq!(r0.faces, base.faces);
