@@ -442,9 +442,19 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), Error> {
 /// OBJ text with `v`, one `vn` per `v`, and `f v//vn` (no `vn` and `f v` when `normals` is
 /// empty). Header lines become comments; a line that already is one (the settings) stays as it is.
 pub fn obj_with_normals(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3]], header: &str) -> String {
+    obj_text(positions, normals, faces, None, header)
+}
+
+/// The same with one `vt` per face corner (`uv(face, corner)`) and `f v/vt/vn`: what other tools
+/// need to sample a map where dispdec wrote it.
+pub fn obj_with_uvs(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3]], uv: impl Fn(u32, usize) -> (f64, f64), header: &str) -> String {
+    obj_text(positions, normals, faces, Some(&uv), header)
+}
+
+fn obj_text(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3]], uv: Option<&dyn Fn(u32, usize) -> (f64, f64)>, header: &str) -> String {
     use std::fmt::Write;
-    let mut s = String::with_capacity(64 * (positions.len() + faces.len()));
-    for line in header.lines() {
+    let mut s = String::with_capacity(96 * (positions.len() + faces.len()));
+    for line in header.lines().filter(|l| !l.is_empty()) {
         if line.starts_with('#') {
             let _ = writeln!(s, "{line}");
         } else {
@@ -458,43 +468,22 @@ pub fn obj_with_normals(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3
     for n in normals {
         let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
     }
-    for f in faces {
-        if normals.is_empty() {
-            let _ = writeln!(s, "f {} {} {}", f[0] + 1, f[1] + 1, f[2] + 1);
-        } else {
-            let _ = writeln!(s, "f {0}//{0} {1}//{1} {2}//{2}", f[0] + 1, f[1] + 1, f[2] + 1);
-        }
-    }
-    s
-}
-
-/// OBJ text of a base mesh with one `vt` per face corner (`uv(face, corner)`), one `vn` per
-/// `v`, and `f v/vt/vn`: what other tools need to sample a map where dispdec wrote it.
-pub fn obj_with_uvs(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3]], uv: impl Fn(u32, usize) -> (f64, f64), header: &str) -> String {
-    use std::fmt::Write;
-    let mut s = String::with_capacity(96 * (positions.len() + faces.len()));
-    for line in header.lines().filter(|l| !l.is_empty()) {
-        if line.starts_with('#') {
-            let _ = writeln!(s, "{line}");
-        } else {
-            let _ = writeln!(s, "# {line}");
-        }
-    }
-    for p in positions {
-        let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);
-    }
-    for n in normals {
-        let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
-    }
-    for f in 0..faces.len() {
-        for k in 0..3 {
-            let (u, v) = uv(f as u32, k);
-            let _ = writeln!(s, "vt {u} {v}");
+    if let Some(uv) = uv {
+        for f in 0..faces.len() as u32 {
+            for k in 0..3 {
+                let (u, v) = uv(f, k);
+                let _ = writeln!(s, "vt {u} {v}");
+            }
         }
     }
     for (i, f) in faces.iter().enumerate() {
+        let [a, b, c] = f.map(|v| v + 1);
         let t = 3 * i + 1;
-        let _ = writeln!(s, "f {}/{}/{} {}/{}/{} {}/{}/{}", f[0] + 1, t, f[0] + 1, f[1] + 1, t + 1, f[1] + 1, f[2] + 1, t + 2, f[2] + 1);
+        let _ = match (uv.is_some(), normals.is_empty()) {
+            (true, _) => writeln!(s, "f {a}/{t}/{a} {b}/{}/{b} {c}/{}/{c}", t + 1, t + 2),
+            (false, true) => writeln!(s, "f {a} {b} {c}"),
+            (false, false) => writeln!(s, "f {a}//{a} {b}//{b} {c}//{c}"),
+        };
     }
     s
 }
