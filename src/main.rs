@@ -44,7 +44,7 @@ impl PrepArgs {
     }
 }
 
-fn flags(prep: &PrepArgs, normals: Option<Normals>, dmax: Option<f64>, strict: bool) -> dispdec::settings::Flags {
+fn flags(prep: &PrepArgs, normals: Option<Normals>, dmax: Option<f64>, strict: Option<bool>) -> dispdec::settings::Flags {
     dispdec::settings::Flags {
         normals: normals.map(mode_of),
         dmax,
@@ -183,8 +183,11 @@ enum Cmd {
         dmax: Option<f64>,
         /// The paper's uniqueness rule: an ambiguous vertex makes BASE invalid (default: on when
         /// BASE was made with --strict).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "no_strict")]
         strict: bool,
+        /// Judge without the uniqueness rule even if BASE was made with --strict.
+        #[arg(long)]
+        no_strict: bool,
         /// Normal mode (default: the one BASE was made with, else interpolated).
         #[arg(long, value_enum)]
         normals: Option<Normals>,
@@ -418,7 +421,7 @@ fn run(cli: Cli) -> Result<i32> {
             }
             Ok(0)
         }
-        Cmd::Validate { high, base, json, fold_image, resolution, dmax, strict, normals, prep, backend, threads } => {
+        Cmd::Validate { high, base, json, fold_image, resolution, dmax, strict, no_strict, normals, prep, backend, threads } => {
             let job = dispdec::run::ValidateJob {
                 backend: backend_of(backend),
                 high,
@@ -426,7 +429,7 @@ fn run(cli: Cli) -> Result<i32> {
                 json,
                 fold_image,
                 resolution,
-                flags: flags(&prep, normals, dmax, strict),
+                flags: flags(&prep, normals, dmax, if strict { Some(true) } else if no_strict { Some(false) } else { None }),
                 threads,
             };
             let r = dispdec::run::validate(&job)?;
@@ -467,7 +470,7 @@ fn run(cli: Cli) -> Result<i32> {
                 MapKind::Normalized => dispdec::bake::Kind::Normalized,
                 MapKind::Vector => dispdec::bake::Kind::Vector,
             };
-            let job = dispdec::run::BakeJob { high, base, map, output, resolution, kind, flags: flags(&prep, normals, dmax, false) };
+            let job = dispdec::run::BakeJob { high, base, map, output, resolution, kind, flags: flags(&prep, normals, dmax, None) };
             let r = dispdec::run::bake(&job)?;
             say.warnings(&r.warnings);
             say.line(&format!(

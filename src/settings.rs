@@ -45,7 +45,8 @@ pub struct Resolved {
 pub struct Flags {
     pub normals: Option<NormalMode>,
     pub dmax: Option<f64>,
-    pub strict: bool,
+    /// `--strict` (Some(true)) or `--no-strict` (Some(false)); None: the settings' choice.
+    pub strict: Option<bool>,
     pub no_weld: bool,
     pub repair: bool,
     pub min_component: Option<usize>,
@@ -65,7 +66,7 @@ pub fn resolve(flags: &Flags, settings: Option<&Settings>, base: &str) -> Resolv
         return Resolved {
             normals: flags.normals.unwrap_or(NormalMode::Interpolated),
             dmax: flags.dmax,
-            strict: flags.strict,
+            strict: flags.strict.unwrap_or(false),
             preparation: Preparation {
                 weld: !flags.no_weld,
                 repair: flags.repair,
@@ -82,6 +83,15 @@ pub fn resolve(flags: &Flags, settings: Option<&Settings>, base: &str) -> Resolv
     if let Some(d) = flags.dmax {
         if (d - s.dmax).abs() > 1e-9 * s.dmax.abs() {
             warnings.push(format!("{base} was made with dmax {}; using --dmax {d} as asked", s.dmax));
+        }
+    }
+    if let Some(st) = flags.strict {
+        if st != s.strict {
+            warnings.push(format!(
+                "{base} was made {}; judging it {} as asked",
+                if s.strict { "with --strict" } else { "without --strict" },
+                if st { "strictly" } else { "without the uniqueness rule" }
+            ));
         }
     }
     let mut prep = s.preparation;
@@ -101,7 +111,7 @@ pub fn resolve(flags: &Flags, settings: Option<&Settings>, base: &str) -> Resolv
     Resolved {
         normals: flags.normals.unwrap_or(s.normals),
         dmax: Some(flags.dmax.unwrap_or(s.dmax)),
-        strict: flags.strict || s.strict,
+        strict: flags.strict.unwrap_or(s.strict),
         preparation: prep,
         warnings,
     }
