@@ -30,7 +30,7 @@ pub struct Exported {
 
 /// Appends `data` to the BIN buffer (4-byte aligned) as a buffer view; returns its index.
 fn push_view(root: &mut json::Root, bin: &mut Vec<u8>, data: &[u8], target: Option<json::buffer::Target>) -> json::Index<json::buffer::View> {
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let view = json::buffer::View {
@@ -88,6 +88,7 @@ fn bounds(v: &[[f32; 3]]) -> ([f32; 3], [f32; 3]) {
 }
 
 /// A triangle mesh primitive from flat arrays (normals and UVs optional).
+#[allow(clippy::too_many_arguments)]
 fn push_mesh(
     root: &mut json::Root,
     bin: &mut Vec<u8>,
@@ -221,7 +222,7 @@ pub fn export_glb(base: &Base, mode: NormalMode, map: &DispMap, rebuilt: Option<
         nodes.push(root.push(json::Node { mesh: Some(m), name: Some(format!("rebuilt at level {level}")), ..Default::default() }));
         r.faces.len()
     });
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     root.push(json::Buffer { byte_length: USize64::from(bin.len()), name: None, uri: None, extensions: None, extras: None });
@@ -229,7 +230,7 @@ pub fn export_glb(base: &Base, mode: NormalMode, map: &DispMap, rebuilt: Option<
     root.scene = Some(scene);
 
     let mut text = root.to_vec().expect("glTF JSON serialises");
-    while text.len() % 4 != 0 {
+    while !text.len().is_multiple_of(4) {
         text.push(b' ');
     }
     let total = 12 + 8 + text.len() + 8 + bin.len();
@@ -247,10 +248,13 @@ pub fn export_glb(base: &Base, mode: NormalMode, map: &DispMap, rebuilt: Option<
     (out, info)
 }
 
+/// One mesh of a `.glb`: positions and triangles.
+pub type GlbMesh = (Vec<DVec3>, Vec<[u32; 3]>);
+
 /// The triangle meshes of a `.glb` (every node's mesh, in scene order; positions and u32 or
 /// u16 indices), for `dispdec render` and the tests. Only what dispdec writes is needed:
 /// embedded BIN chunk, tightly packed accessors.
-pub fn read_glb_meshes(bytes: &[u8]) -> Result<Vec<(Vec<DVec3>, Vec<[u32; 3]>)>, String> {
+pub fn read_glb_meshes(bytes: &[u8]) -> Result<Vec<GlbMesh>, String> {
     let u = |o: usize| -> Result<u32, String> {
         bytes.get(o..o + 4).map(|b| u32::from_le_bytes(b.try_into().unwrap())).ok_or_else(|| "truncated GLB".to_string())
     };

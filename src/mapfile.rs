@@ -78,7 +78,8 @@ impl MapFile {
         let err = |msg: String| Error::Input { path: path.display().to_string(), msg };
         let b = std::fs::read(path).map_err(|e| err(format!("cannot read file: {e}")))?;
         let v2 = b.len() >= 28 && &b[..8] == MAGIC;
-        if !v2 && !(b.len() >= 24 && &b[..8] == MAGIC_V1) {
+        let v1 = b.len() >= 24 && &b[..8] == MAGIC_V1;
+        if !v2 && !v1 {
             return Err(err("not a dispdec map file (bad magic)".into()));
         }
         let u = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap());

@@ -422,3 +422,28 @@ fn exit_code_one_only_for_a_failed_check() {
     let o = run(&["bake", s(&high), s(&base), "--map", s(&junk), "-o", s(&d.join("x.pfm")), "--resolution", "64"]);
     assert_eq!(o.status.code(), Some(2));
 }
+
+#[test]
+fn a_strict_base_is_judged_strictly_unless_told_otherwise() {
+    let d = tempdir("strict-settings");
+    let (v, f) = bumpy_sphere();
+    let high = d.join("high.obj");
+    write_obj(&high, &v, &f);
+    let (code, _, err, _) = decimate(&d, &high, "base", &["--strict"]);
+    assert_eq!(code, 0, "{err}");
+    let base = d.join("base.obj");
+    let json = d.join("v.json");
+    let judged = |extra: &[&str]| {
+        let mut args = vec!["validate", s(&high), s(&base), "--json", s(&json), "--backend", "cpu"];
+        args.extend_from_slice(extra);
+        let o = run(&args);
+        let v: Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+        (v["strict"].as_bool().unwrap(), String::from_utf8_lossy(&o.stderr).to_string())
+    };
+    let (strict, err) = judged(&[]);
+    assert!(strict, "the settings say strict: {err}");
+    assert!(!err.contains("warning"), "{err}");
+    let (strict, err) = judged(&["--no-strict"]);
+    assert!(!strict);
+    assert!(err.contains("was made with --strict; judging it without the uniqueness rule"), "{err}");
+}

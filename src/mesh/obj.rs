@@ -44,10 +44,8 @@ pub(super) fn load_obj(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
     let mut face_start: Vec<usize> = vec![0];
     let (mut nv, mut nn) = (0usize, 0usize);
     let mut settings = None;
-    let mut lineno = 0usize;
     let mut pending: Vec<u8> = Vec::new();
-    for raw in bytes.split(|&c| c == b'\n') {
-        lineno += 1;
+    for (lineno, raw) in (1usize..).zip(bytes.split(|&c| c == b'\n')) {
         let raw = raw.strip_suffix(b"\r").unwrap_or(raw);
         // A trailing backslash continues the statement on the next line.
         if let Some(head) = raw.strip_suffix(b"\\") {
@@ -149,7 +147,7 @@ pub(super) fn load_obj(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
             text.push('\n');
         }
     }
-    let opts = tobj::LoadOptions { triangulate: true, single_index: false, ignore_points: true, ignore_lines: true, ..Default::default() };
+    let opts = tobj::LoadOptions { triangulate: true, single_index: false, ignore_points: true, ignore_lines: true };
     let mut reader = BufReader::new(text.as_bytes());
     let (models, _) = tobj::load_obj_buf(&mut reader, &opts, |_| Err(tobj::LoadError::OpenFileFailed))
         .map_err(|e| input_err(path, format!("OBJ parse error: {e}")))?;

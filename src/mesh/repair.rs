@@ -487,7 +487,7 @@ mod tests {
             faces.push(if i % 2 == 0 { [v, v + 2, v + 1] } else { [v, v + 1, v + 2] });
         }
         let mut c = Cleanup::default();
-        let r = repair_faces(&p, faces, 0, &mut c).ok().expect("repaired");
+        let r = repair_faces(&p, faces, 0, &mut c).unwrap_or_else(|_| panic!("repaired"));
         assert_eq!(c.non_manifold_edges, 1);
         assert_eq!(c.non_manifold_edge_faces_removed, 1);
         assert!(!r.source_face.contains(&1), "the face running the same way as the first is removed");
@@ -501,7 +501,7 @@ mod tests {
         //  0---1---4 (4 is to the right; face 2 winds the wrong way)
         let p = vec![DVec3::ZERO, DVec3::X, DVec3::new(1.0, 1.0, 0.0), DVec3::Y, DVec3::new(2.0, 0.0, 0.0)];
         let mut c = Cleanup::default();
-        let r = repair_faces(&p, vec![[0, 1, 2], [0, 2, 3], [1, 2, 4]], 0, &mut c).ok().unwrap();
+        let r = repair_faces(&p, vec![[0, 1, 2], [0, 2, 3], [1, 2, 4]], 0, &mut c).unwrap_or_else(|_| panic!());
         assert_eq!(c.flipped_faces, 1);
         assert_eq!(r.faces[2], [1, 4, 2]);
         assert!(crate::topology::Topology::build(5, &r.faces).is_ok());
@@ -515,7 +515,7 @@ mod tests {
         //  1---0---3
         let p = vec![DVec3::ZERO, DVec3::NEG_X, DVec3::new(-1.0, 1.0, 0.0), DVec3::X, DVec3::new(1.0, 1.0, 0.0)];
         let mut c = Cleanup::default();
-        let r = repair_faces(&p, vec![[0, 2, 1], [0, 3, 4]], 0, &mut c).ok().unwrap();
+        let r = repair_faces(&p, vec![[0, 2, 1], [0, 3, 4]], 0, &mut c).unwrap_or_else(|_| panic!());
         assert_eq!((c.non_manifold_vertices, c.vertex_copies), (1, 1));
         assert_eq!(r.copies, vec![0]);
         assert_eq!(r.faces[1][0], 5, "the second fan gets the copy");
@@ -529,7 +529,7 @@ mod tests {
         let p = vec![DVec3::ZERO, DVec3::X, DVec3::new(1.0, 1.0, 0.0), DVec3::Y, DVec3::splat(5.0), DVec3::new(6.0, 5.0, 5.0), DVec3::new(5.0, 6.0, 5.0)];
         let faces = vec![[0, 1, 2], [0, 2, 3], [1, 1, 2], [0, 2, 1], [4, 5, 6]];
         let mut c = Cleanup::default();
-        let r = repair_faces(&p, faces, 2, &mut c).ok().unwrap();
+        let r = repair_faces(&p, faces, 2, &mut c).unwrap_or_else(|_| panic!());
         assert_eq!((c.degenerate_faces, c.duplicate_faces), (1, 1));
         assert_eq!((c.components_dropped, c.component_faces_dropped), (1, 1));
         assert_eq!(r.source_face, vec![0, 1]);
