@@ -318,33 +318,27 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
             total_s: 0.0,
         },
     };
-    // Write everything only now, each atomically; a failure removes what this run wrote.
+    // Write everything only now, each atomically; a failure removes what this run wrote. The
+    // report goes last: it carries the time the other writes took.
     let t_w = Instant::now();
-    let mut written: Vec<PathBuf> = Vec::new();
-    let result = (|| -> Result<(), Error> {
-        write_atomic(&job.output, obj.as_bytes())?;
-        written.push(job.output.clone());
-        if let (Some(p), Some(b)) = (&job.map, &map_bytes) {
-            write_atomic(p, b)?;
-            written.push(p.clone());
+    let mut files: Vec<(&std::path::Path, &[u8])> = vec![(job.output.as_path(), obj.as_bytes())];
+    if let (Some(p), Some(b)) = (&job.map, &map_bytes) {
+        files.push((p.as_path(), b));
+    }
+    if let (Some(p), Some(b)) = (&job.repaired, &repaired_obj) {
+        files.push((p.as_path(), b));
+    }
+    mesh::write_all_atomic(&files)?;
+    report.time.write_s = t_w.elapsed().as_secs_f64();
+    report.time.total_s = t_start.elapsed().as_secs_f64();
+    if let Some(p) = &job.report {
+        let json = serde_json::to_string_pretty(&report).expect("report serialises");
+        if let Err(e) = write_atomic(p, json.as_bytes()) {
+            for (q, _) in &files {
+                let _ = std::fs::remove_file(q);
+            }
+            return Err(e);
         }
-        if let (Some(p), Some(b)) = (&job.repaired, &repaired_obj) {
-            write_atomic(p, b)?;
-            written.push(p.clone());
-        }
-        report.time.write_s = t_w.elapsed().as_secs_f64();
-        report.time.total_s = t_start.elapsed().as_secs_f64();
-        if let Some(p) = &job.report {
-            let json = serde_json::to_string_pretty(&report).expect("report serialises");
-            write_atomic(p, json.as_bytes())?;
-        }
-        Ok(())
-    })();
-    if let Err(e) = result {
-        for p in written {
-            let _ = std::fs::remove_file(p);
-        }
-        return Err(e);
     }
     Ok(report)
 }

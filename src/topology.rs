@@ -321,6 +321,33 @@ impl Topology {
     }
 }
 
+/// Union–find over `0..n`; a class is named by its lowest member, so results do not depend on
+/// the order of the joins.
+pub struct DisjointSets {
+    parent: Vec<u32>,
+}
+
+impl DisjointSets {
+    pub fn new(n: usize) -> DisjointSets {
+        DisjointSets { parent: (0..n as u32).collect() }
+    }
+
+    pub fn find(&mut self, mut x: u32) -> u32 {
+        while self.parent[x as usize] != x {
+            self.parent[x as usize] = self.parent[self.parent[x as usize] as usize];
+            x = self.parent[x as usize];
+        }
+        x
+    }
+
+    pub fn join(&mut self, a: u32, b: u32) {
+        let (ra, rb) = (self.find(a), self.find(b));
+        if ra != rb {
+            self.parent[ra.max(rb) as usize] = ra.min(rb);
+        }
+    }
+}
+
 /// (genus, boundary loops) from the Euler characteristic; the genus is summed over the
 /// components (each has chi = 2 - 2g - b).
 pub fn topology_summary(nv: usize, faces: &[[u32; 3]]) -> (i64, usize) {
@@ -359,24 +386,14 @@ pub fn topology_summary(nv: usize, faces: &[[u32; 3]]) -> (i64, usize) {
     };
     let chi = used as i64 - e as i64 + faces.len() as i64;
     // Components: faces joined across interior edges.
-    let mut parent: Vec<u32> = (0..faces.len() as u32).collect();
-    fn find(p: &mut [u32], mut x: u32) -> u32 {
-        while p[x as usize] != x {
-            p[x as usize] = p[p[x as usize] as usize];
-            x = p[x as usize];
-        }
-        x
-    }
+    let mut sets = DisjointSets::new(faces.len());
     for h in 0..topo.corner.len() as u32 {
         let o = topo.opp[h as usize];
         if o != INVALID {
-            let (a, b) = (find(&mut parent, face_of(h)), find(&mut parent, face_of(o)));
-            if a != b {
-                parent[a.max(b) as usize] = a.min(b);
-            }
+            sets.join(face_of(h), face_of(o));
         }
     }
-    let components = (0..faces.len() as u32).filter(|&f| find(&mut parent, f) == f).count() as i64;
+    let components = (0..faces.len() as u32).filter(|&f| sets.find(f) == f).count() as i64;
     let genus = (2 * components - chi - loops as i64) / 2;
     (genus, loops)
 }

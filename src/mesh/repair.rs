@@ -6,6 +6,7 @@
 //! in the order of [`repair_faces`]: later ones rely on what earlier ones guarantee (orienting
 //! needs at most two faces per edge; splitting fans needs consistent winding).
 
+use crate::topology::DisjointSets;
 use glam::DVec3;
 
 /// How a scan is prepared before it is checked (SPEC §6).
@@ -112,10 +113,18 @@ pub fn is_degenerate(positions: &[DVec3], f: [u32; 3]) -> bool {
     (b - a).cross(c - a).length_squared() == 0.0
 }
 
+/// The live faces keyed by their sorted vertices, sorted: a run of equal keys is one set of
+/// duplicates (either winding), lowest face first.
+fn keyed_by_vertices(faces: &[[u32; 3]], alive: &[bool]) -> Vec<([u32; 3], u32)> {
+    let mut keyed: Vec<([u32; 3], u32)> =
+        faces.iter().enumerate().filter(|(i, _)| alive[*i]).map(|(i, f)| (sorted(*f), i as u32)).collect();
+    keyed.sort_unstable();
+    keyed
+}
+
 /// The first pair of faces on the same three vertices (either winding), if any.
 pub fn first_duplicate(faces: &[[u32; 3]]) -> Option<(u32, u32)> {
-    let mut keyed: Vec<([u32; 3], u32)> = faces.iter().enumerate().map(|(i, f)| (sorted(*f), i as u32)).collect();
-    keyed.sort_unstable();
+    let keyed = keyed_by_vertices(faces, &vec![true; faces.len()]);
     keyed.chunk_by(|x, y| x.0 == y.0).filter(|r| r.len() > 1).map(|r| (r[0].1, r[1].1)).min_by_key(|p| p.1)
 }
 
@@ -228,9 +237,7 @@ fn drop_degenerate_faces(positions: &[DVec3], faces: &[[u32; 3]], alive: &mut [b
 
 /// Keeps the first of the faces on the same three vertices, whatever their winding.
 fn drop_duplicate_faces(faces: &[[u32; 3]], alive: &mut [bool], cleanup: &mut Cleanup) {
-    let mut keyed: Vec<([u32; 3], u32)> =
-        faces.iter().enumerate().filter(|(i, _)| alive[*i]).map(|(i, f)| (sorted(*f), i as u32)).collect();
-    keyed.sort_unstable();
+    let keyed = keyed_by_vertices(faces, alive);
     for run in keyed.chunk_by(|x, y| x.0 == y.0) {
         for &(_, f) in &run[1..] {
             alive[f as usize] = false;
@@ -342,24 +349,13 @@ fn orient_components(faces: &mut [[u32; 3]], alive: &[bool], cleanup: &mut Clean
 /// Corners are joined across every edge two faces share; each class of corners around a vertex
 /// is one fan. Returns, per copy, its input vertex.
 fn split_nonmanifold_vertices(nv: usize, faces: &mut [[u32; 3]], alive: &[bool], cleanup: &mut Cleanup) -> Vec<u32> {
-    let mut parent: Vec<u32> = (0..faces.len() as u32 * 3).collect();
-    fn find(p: &mut [u32], mut x: u32) -> u32 {
-        while p[x as usize] != x {
-            p[x as usize] = p[p[x as usize] as usize];
-            x = p[x as usize];
-        }
-        x
-    }
+    let mut sets = DisjointSets::new(faces.len() * 3);
     let corner = |f: u32, v: u32, faces: &[[u32; 3]]| 3 * f + faces[f as usize].iter().position(|&w| w == v).unwrap_or(0) as u32;
     let edges = edge_list(faces, alive);
     for run in edges.chunk_by(|x, y| (x.0, x.1) == (y.0, y.1)) {
         if let [x, y] = run {
             for v in [x.0, x.1] {
-                let (cx, cy) = (corner(x.2, v, faces), corner(y.2, v, faces));
-                let (rx, ry) = (find(&mut parent, cx), find(&mut parent, cy));
-                if rx != ry {
-                    parent[rx.max(ry) as usize] = rx.min(ry);
-                }
+                sets.join(corner(x.2, v, faces), corner(y.2, v, faces));
             }
         }
     }
@@ -374,7 +370,7 @@ fn split_nonmanifold_vertices(nv: usize, faces: &mut [[u32; 3]], alive: &[bool],
         }
         for k in 0..3 {
             let v = faces[f as usize][k];
-            let r = find(&mut parent, 3 * f + k as u32);
+            let r = sets.find(3 * f + k as u32);
             if first_root[v as usize] == u32::MAX {
                 first_root[v as usize] = r;
             } else if first_root[v as usize] != r {
@@ -394,21 +390,11 @@ fn split_nonmanifold_vertices(nv: usize, faces: &mut [[u32; 3]], alive: &[bool],
 
 /// Connected components by shared edges; those below `min_faces` faces are dropped.
 pub fn component_sizes(faces: &[[u32; 3]], alive: &[bool]) -> (Vec<u32>, Vec<usize>) {
-    let mut parent: Vec<u32> = (0..faces.len() as u32).collect();
-    fn find(p: &mut [u32], mut x: u32) -> u32 {
-        while p[x as usize] != x {
-            p[x as usize] = p[p[x as usize] as usize];
-            x = p[x as usize];
-        }
-        x
-    }
+    let mut sets = DisjointSets::new(faces.len());
     let edges = edge_list(faces, alive);
     for run in edges.chunk_by(|x, y| (x.0, x.1) == (y.0, y.1)) {
         for w in run.windows(2) {
-            let (a, b) = (find(&mut parent, w[0].2), find(&mut parent, w[1].2));
-            if a != b {
-                parent[a.max(b) as usize] = a.min(b);
-            }
+            sets.join(w[0].2, w[1].2);
         }
     }
     let mut label = vec![u32::MAX; faces.len()];
@@ -418,7 +404,7 @@ pub fn component_sizes(faces: &[[u32; 3]], alive: &[bool]) -> (Vec<u32>, Vec<usi
         if !alive[f as usize] {
             continue;
         }
-        let r = find(&mut parent, f);
+        let r = sets.find(f);
         let id = *id_of_root.entry(r).or_insert_with(|| {
             sizes.push(0);
             sizes.len() as u32 - 1
