@@ -85,6 +85,9 @@ pub struct Stats {
     pub rejected: std::collections::BTreeMap<String, u64>,
     /// Accepted collapses per placement: [kept endpoint, other endpoint, midpoint].
     pub placement_wins: [u64; 3],
+    /// Candidates put back untried because an earlier commit of their round changed what their
+    /// test read (SPEC §3).
+    pub deferred: u64,
     pub time_pick_s: f64,
     pub time_evaluate_s: f64,
     pub time_commit_s: f64,
@@ -112,6 +115,11 @@ pub struct State {
     pub face_grid: FaceGrid,
     /// An upper bound on |d| over all associations (grows as the base coarsens).
     pub max_abs_d: f64,
+    /// Per dense vertex, half its longest incident edge: every point of its edges lies within
+    /// this distance of it or of the edge's other end.
+    pub edge_reach: Vec<f64>,
+    /// The largest of `edge_reach`.
+    pub edge_reach_max: f64,
     /// Dense vertices (not pinched) that fail condition (4) on the initial base (the scan
     /// itself): none with interpolated normals (the direction rule), some in constant mode,
     /// where a vertex sees only its faces' own normals.
@@ -176,11 +184,25 @@ impl State {
             grid: DenseGrid::new(&dense.positions),
             face_grid: FaceGrid::new(&dense.positions, &dense.topology),
             max_abs_d: 0.0,
+            edge_reach: {
+                let mut r = vec![0.0f64; nv];
+                for t in &dense.faces {
+                    for k in 0..3 {
+                        let (a, b) = (t[k] as usize, t[(k + 1) % 3] as usize);
+                        let h = 0.5 * dense.positions[a].distance(dense.positions[b]);
+                        r[a] = r[a].max(h);
+                        r[b] = r[b].max(h);
+                    }
+                }
+                r
+            },
+            edge_reach_max: 0.0,
             unmapped_at_start: 0,
             heap: BinaryHeap::new(),
             queued: HashSet::new(),
             stats: Stats::default(),
         };
+        st.edge_reach_max = st.edge_reach.iter().copied().fold(0.0, f64::max);
         st.dir = (0..nv as u32).into_par_iter().map(|v| st.compute_dir(v)).collect();
         st.unmapped_at_start = (0..nv as u32)
             .into_par_iter()
@@ -421,19 +443,25 @@ impl State {
         out
     }
 
-    /// Applies accepted candidates in batch order (SPEC §2 step 6). A candidate whose dense
-    /// vertices were re-associated by an earlier commit of the same round is stale: it goes
-    /// back to the queue untried.
-    pub fn commit_collapses(&mut self, batch: Vec<Candidate>, outcomes: Vec<Outcome>, vmark: &mut [u32], round: u32) {
+    /// Applies accepted candidates in batch order (SPEC §2 step 6, §3). A candidate whose
+    /// footprint meets what an earlier commit of the same round changed — a dense vertex it
+    /// tested or read re-associated, a base face it read collapsed or re-shaped — is stale: it
+    /// goes back to the queue untried.
+    pub fn commit_collapses(&mut self, batch: Vec<Candidate>, outcomes: Vec<Outcome>, vmark: &mut [u32], fmark: &mut [u32], round: u32) {
         let (mut s, mut t1, mut t2) = (Vec::new(), Vec::new(), Vec::new());
         for (c, o) in batch.into_iter().zip(outcomes) {
             let stale = {
                 let dfaces = &self.dense.faces;
                 let touched = |v: u32| vmark[v as usize] == round;
                 c.dense_faces.iter().any(|&f| dfaces[f as usize].iter().any(|&v| touched(v)))
-                    || o.as_ref().map(|a| a.extras.iter().any(|&(v, _)| touched(v))).unwrap_or(false)
+                    || o.as_ref().is_ok_and(|a| {
+                        a.extras.iter().any(|&(v, _)| touched(v))
+                            || a.read_vertices.iter().any(|&v| touched(v))
+                            || a.read_faces.iter().any(|&f| fmark[f as usize] == round)
+                    })
             };
             if stale {
+                self.stats.deferred += 1;
                 self.push_edge(c.u, c.w);
                 continue;
             }
@@ -462,6 +490,7 @@ impl State {
             }
             for &f in c.region.iter() {
                 self.face_dense[f as usize].clear();
+                fmark[f as usize] = round;
             }
             for (i, &v) in c.dense.iter().enumerate() {
                 let m = acc.maps[i];
@@ -500,6 +529,7 @@ impl State {
     pub fn run(&mut self, evaluator: &dyn Evaluator, opts: &Options, mut progress: impl FnMut(usize)) -> Result<(), crate::gpu::GpuError> {
         let mut marks = vec![0u32; self.pos.len()];
         let mut vmark = vec![0u32; self.dense.pos.len()];
+        let mut fmark = vec![0u32; self.topo.num_faces_total()];
         let mut round = 0u32;
         while self.face_count > opts.target_faces.max(1) {
             round += 1;
@@ -534,12 +564,27 @@ impl State {
                 }
                 outcomes.truncate(keep);
             }
-            self.commit_collapses(batch, outcomes, &mut vmark, round);
+            self.commit_collapses(batch, outcomes, &mut vmark, &mut fmark, round);
             let t3 = Instant::now();
             self.stats.time_pick_s += (t1 - t0).as_secs_f64();
             self.stats.time_evaluate_s += (t2 - t1).as_secs_f64();
             self.stats.time_commit_s += (t3 - t2).as_secs_f64();
             progress(self.face_count);
+            if std::env::var("DISPDEC_PROFILE").is_ok() && round % 200 == 0 {
+                use std::sync::atomic::Ordering::Relaxed;
+                eprintln!(
+                    "round {round}: {} faces, tried {}, accepted {}, deferred {}, edges {}, midpoints {}, faces own {} all {}, eval {:.1} s",
+                    self.face_count,
+                    self.stats.tried,
+                    self.stats.accepted,
+                    self.stats.deferred,
+                    crate::guarantee::check::EDGES.load(Relaxed),
+                    crate::guarantee::check::MIDPOINTS.load(Relaxed),
+                    crate::guarantee::check::FACES_OWN.load(Relaxed),
+                    crate::guarantee::check::FACES_ALL.load(Relaxed),
+                    self.stats.time_evaluate_s
+                );
+            }
         }
         Ok(())
     }

@@ -320,7 +320,7 @@ impl GpuEvaluator {
 
     /// Projects every dense vertex onto the whole base (the validator's first step): the
     /// primary solution of each, `None` when it has none.
-    pub fn project(&self, dense: &DenseData, base: &crate::validate::Base, bvh: &Bvh, mode: NormalMode, dmax: f64) -> Result<Vec<Option<Map>>, GpuError> {
+    fn project_impl(&self, dense: &DenseData, base: &crate::validate::Base, bvh: &Bvh, mode: NormalMode, dmax: f64) -> Result<Vec<Option<Map>>, GpuError> {
         let t0 = Instant::now();
         let (lo, hi) = base.positions.iter().fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(l, h), &p| (l.min(p), h.max(p)));
         let origin = if base.positions.is_empty() { DVec3::ZERO } else { 0.5 * (lo + hi) };
@@ -380,6 +380,12 @@ impl GpuEvaluator {
             .collect();
         self.add_stats(&answers, results.iter().map(|r| r.1).sum(), kernel_s);
         Ok(results.into_iter().map(|r| r.0).collect())
+    }
+}
+
+impl crate::validate::Project for GpuEvaluator {
+    fn project(&self, dense: &DenseData, base: &crate::validate::Base, bvh: &Bvh, mode: NormalMode, dmax: f64) -> Result<Vec<Option<Map>>, GpuError> {
+        self.project_impl(dense, base, bvh, mode, dmax)
     }
 }
 

@@ -7,7 +7,9 @@
 //! - [`topology`]: half-edges on flat `u32` arrays, link condition, edge collapse;
 //! - [`fold`]: the fold image (coverage of the base by the scan, per texel);
 //! - [`geometry`]: pure kernels (normals, shell inversion, condition (4));
-//! - [`eval`]: the [`eval::Evaluator`] trait, the CPU evaluator, primary search, flip and tear tests;
+//! - [`guarantee`]: the predicates of SPEC §1 every check shares (primary search, continuity,
+//!   orientation in intrinsic charts);
+//! - [`eval`]: the [`eval::Evaluator`] trait and the CPU evaluator;
 //! - [`local`]: the local test of one candidate collapse;
 //! - [`bench`]: `dispdec bench`, CPU and GPU paths side by side, with meshoptimizer as reference;
 //! - [`bake`]: the displacement map over the atlas, the guarantee's inverse (EXR, PFM, PNG16;
@@ -20,13 +22,14 @@
 //! - [`grid`]: uniform grids over dense vertices and base faces (the searches for smaller |d|);
 //! - [`mapfile`]: the `BASE.map` binary format;
 //! - [`plot`]: the error-against-level chart (PNG);
+//! - [`recheck`]: the decimator's re-check of its own state;
 //! - [`reconstruct`]: subdivision + displacement, and distances to the scan;
 //! - [`render`]: headless wgpu render of meshes side by side;
 //! - [`run`]: the library side of the `decimate` command (options in, files and report out);
 //! - [`sample`]: the generator of the scan-like sample meshes in `data/`;
 //! - [`settings`]: the settings a base records (BASE.obj, BASE.map) and their resolution
 //!   against flags;
-//! - [`validate`]: the global check of a base mesh against its scan, and the local re-check.
+//! - [`validate`]: the independent, global check of a (scan, base) pair.
 
 pub mod bake;
 pub mod bench;
@@ -39,10 +42,12 @@ pub mod geometry;
 pub mod gpu;
 pub mod gpu_eval;
 pub mod grid;
+pub mod guarantee;
 pub mod local;
 pub mod mapfile;
 pub mod mesh;
 pub mod plot;
+pub mod recheck;
 pub mod reconstruct;
 pub mod render;
 pub mod run;

@@ -9,7 +9,7 @@
 //!   gain a solution there ([`State::moved_primaries`]).
 
 use crate::decimate::{Candidate, State};
-use crate::eval::{check_faces_and_edges, find_primary, Accepted, FaceInfo, Found, Map, MapContext, NormalMode, Outcome, Reject, Scratch, Tris};
+use crate::eval::{check_faces, find_primary, find_primary_hinted, Accepted, CheckScratch, CheckStats, FaceInfo, Found, Map, MapContext, NormalMode, Outcome, Reject, Scratch, Tris};
 use crate::geometry::{face_cross, vertex_direction};
 use crate::topology::INVALID;
 use glam::DVec3;
@@ -120,8 +120,10 @@ impl State {
     }
 
     /// The rest of a placement's test once the region's vertices are solved: faces outside
-    /// that may hold smaller |d|, vertices whose primary moves onto the region, and the flip
-    /// and tear checks.
+    /// that may hold smaller |d|, vertices whose primary moves onto the region, (strict) second
+    /// solutions of the ring's vertices on the region, and the exact orientation and continuity
+    /// checks of SPEC §1. Records everything the test read outside the neighbourhood, so that
+    /// commit can defer the candidate if an earlier commit of the round changed it.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn finish_placement(
         &self,
@@ -134,31 +136,148 @@ impl State {
         scratch: &mut Scratch,
     ) -> Result<Accepted, Reject> {
         let dense = &self.dense;
-        self.far_primaries(c, tris, &mut maps, scratch);
-        let extras = self.moved_primaries(c, tris, n_region, scratch);
-        let faces_owned;
-        let faces: &[u32] = if extras.is_empty() {
-            &c.dense_faces
-        } else {
-            let mut f = c.dense_faces.clone();
-            for &(v, _) in &extras {
-                f.extend_from_slice(dense.faces_of(v));
+        let mut read_faces = Vec::new();
+        self.far_primaries(c, tris, &mut maps, scratch, &mut read_faces);
+        let (extras, near) = self.moved_primaries(c, tris, n_region, scratch);
+        if self.strict {
+            self.strict_ring(c, tris, n_region, &extras, scratch)?;
+        }
+        // Whole triangles around every vertex whose map changes; only the edges of the vertices
+        // whose maps stay but whose edges pass near the region (their images can change only by
+        // reaching onto it, which continuity sees).
+        let mut faces: Vec<u32> = c.dense_faces.clone();
+        for &(v, _) in &extras {
+            faces.extend_from_slice(dense.faces_of(v));
+        }
+        faces.sort_unstable();
+        faces.dedup();
+        let mut edges: Vec<(u32, u32)> = Vec::new();
+        for &v in &near {
+            for &f in dense.faces_of(v) {
+                if faces.binary_search(&f).is_ok() {
+                    continue;
+                }
+                for w in dense.faces[f as usize] {
+                    if w != v {
+                        edges.push((v.min(w), v.max(w)));
+                    }
+                }
             }
-            f.sort_unstable();
-            f.dedup();
-            faces_owned = f;
-            &faces_owned
+        }
+        edges.sort_unstable();
+        edges.dedup();
+        crate::guarantee::check::FACES_OWN.fetch_add(c.dense_faces.len() as u64, std::sync::atomic::Ordering::Relaxed);
+        crate::guarantee::check::FACES_ALL.fetch_add(faces.len() as u64, std::sync::atomic::Ordering::Relaxed);
+        let ctx = CandidateContext {
+            st: self,
+            c,
+            tris,
+            faces: &faces,
+            outer: std::cell::OnceCell::new(),
+            maps: &maps,
+            extras: &extras,
+            reads: std::cell::RefCell::new(read_faces),
         };
-        let ctx = CandidateContext { st: self, c, tris, maps: &maps, extras: &extras };
-        let tested = |v: u32| c.dense.binary_search(&v).is_ok() || extras.binary_search_by_key(&v, |e| e.0).is_ok();
-        check_faces_and_edges(&ctx, &dense, faces, tested, scratch)?;
-        Ok(Accepted { placement: 0, position: p, new_dirs, maps, extras })
+        let mut sc = CheckScratch::default();
+        let mut stats = CheckStats::default();
+        check_faces(&ctx, dense, &faces, &edges, &mut sc, &mut stats)?;
+        let mut read_faces = ctx.reads.into_inner();
+        read_faces.sort_unstable();
+        read_faces.dedup();
+        let mut read_vertices: Vec<u32> = faces.iter().flat_map(|&f| dense.faces[f as usize]).collect();
+        read_vertices.extend(edges.iter().flat_map(|e| [e.0, e.1]));
+        read_vertices.extend_from_slice(&near);
+        read_vertices.sort_unstable();
+        read_vertices.dedup();
+        Ok(Accepted { placement: 0, position: p, new_dirs, maps, extras, read_faces, read_vertices })
+    }
+
+    /// The faces outside the neighbourhood that a bisection midpoint of the checked dense faces
+    /// can reach: every live face within OUTER_REACH × the largest |d| of their vertices (plus
+    /// their bounding box. Built on a candidate's first midpoint. A midpoint whose own |d| reaches beyond
+    /// the box queries the grid itself.
+    fn outer_faces(&self, c: &Candidate, tris: &Tris, faces: &[u32], maps: &[Map], extras: &[(u32, Map)]) -> Outer {
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        let mut dmax_seen: f64 = 0.0;
+        for &f in faces {
+            for v in self.dense.faces[f as usize] {
+                let x = self.dense.pos[v as usize];
+                lo = lo.min(x);
+                hi = hi.max(x);
+                let d = match c.dense.binary_search(&v) {
+                    Ok(i) => maps[i].d,
+                    Err(_) => match extras.binary_search_by_key(&v, |e| e.0) {
+                        Ok(i) => extras[i].1.d,
+                        Err(_) => self.assoc[v as usize].d,
+                    },
+                };
+                dmax_seen = dmax_seen.max(d.abs());
+            }
+        }
+        let reach = (OUTER_REACH * dmax_seen).min(self.dmax);
+        let (lo, hi) = (lo - DVec3::splat(reach), hi + DVec3::splat(reach));
+        let mut ids = Vec::new();
+        self.face_grid.query(lo, hi, &mut ids);
+        let mut t = Tris::default();
+        for f in ids {
+            if tris.index_of(f).is_some() || c.region.binary_search(&f).is_ok() || !self.topo.face_alive(f) {
+                continue;
+            }
+            let info = self.face_info_current(f);
+            t.push(f, info.verts, info.pos, info.dir);
+        }
+        t.finish();
+        Outer { tris: t, lo, hi }
+    }
+
+    /// (`--strict`) The paper's uniqueness, verified on the ring too: a vertex associated with
+    /// a border face must not gain a second solution on a region face touching its primary's
+    /// face, and a vertex whose primary moves onto the region must have exactly one solution on
+    /// the neighbourhood.
+    fn strict_ring(&self, c: &Candidate, tris: &Tris, n_region: usize, extras: &[(u32, Map)], scratch: &mut Scratch) -> Result<(), Reject> {
+        let dense = &self.dense;
+        let mut normals = Vec::new();
+        let tie = crate::eval::SAME_SOLUTION_REL * self.dmax;
+        for &(v, _) in extras {
+            dense.vertex_normals(v, &mut normals);
+            if find_primary(dense.pos[v as usize], &normals, tris, self.mode, self.dmax, true, true, scratch) == Found::Ambiguous {
+                return Err(Reject::Ambiguous);
+            }
+        }
+        for &f in &c.border {
+            let fv = self.topo.face(f);
+            for &v in &self.face_dense[f as usize] {
+                if dense.pinched[v as usize] || extras.binary_search_by_key(&v, |e| e.0).is_ok() {
+                    continue;
+                }
+                let m = self.assoc[v as usize];
+                let x = dense.pos[v as usize];
+                let p0 = crate::geometry::interpolate_direction(&self.face_info_current(m.face).pos, &m.bary);
+                dense.vertex_normals(v, &mut normals);
+                for t in 0..n_region {
+                    if !tris.verts[t].iter().any(|w| fv.contains(w)) {
+                        continue;
+                    }
+                    for h in crate::eval::solve_tri(x, tris, t, self.mode, self.dmax).iter() {
+                        if !crate::geometry::condition4(crate::eval::direction_at(tris, t, &h, self.mode), normals.iter().copied()) {
+                            continue;
+                        }
+                        let q = crate::geometry::interpolate_direction(&tris.pos[t], &h.bary);
+                        if q.distance(p0) > tie {
+                            return Err(Reject::Ambiguous);
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
     }
 
     /// The region's vertices were solved over region ∪ border; a face outside (the far side of
     /// a thin part) may hold a solution with a smaller |d|. Any such face lies within |d| of the
     /// vertex, so one grid query with the largest |d| finds every candidate face.
-    fn far_primaries(&self, c: &Candidate, tris: &Tris, maps: &mut [Map], scratch: &mut Scratch) {
+    fn far_primaries(&self, c: &Candidate, tris: &Tris, maps: &mut [Map], scratch: &mut Scratch, reads: &mut Vec<u32>) {
         let mut lo = DVec3::splat(f64::INFINITY);
         let mut hi = DVec3::splat(f64::NEG_INFINITY);
         let mut reach: f64 = 0.0;
@@ -194,6 +313,7 @@ impl State {
             return;
         }
         far.finish();
+        reads.extend_from_slice(&far.ids);
         let dense = &self.dense;
         let mut normals = Vec::new();
         let tie = crate::eval::SAME_SOLUTION_REL * self.dmax;
@@ -215,12 +335,14 @@ impl State {
 
     /// Dense vertices associated outside the region whose primary solution moves onto it: a
     /// vertex can only gain a solution on a changed triangle T if its distance to T is below
-    /// its current |d| (|x − X| ≤ |d|), so the grid finds every candidate. Returns their new
-    /// maps, ascending by vertex.
-    fn moved_primaries(&self, c: &Candidate, tris: &Tris, n_region: usize, scratch: &mut Scratch) -> Vec<(u32, Map)> {
-        let reach = self.max_abs_d;
-        if reach <= 0.0 || n_region == 0 {
-            return Vec::new();
+    /// its current |d| (|x − X| ≤ |d|·|N| ≤ |d|), so the grid finds every candidate. Returns
+    /// their new maps, ascending by vertex, and the other vertices near enough that a point of
+    /// one of their edges (within half the vertex's longest edge) may gain a smaller solution on
+    /// the region: their edges are tested too.
+    fn moved_primaries(&self, c: &Candidate, tris: &Tris, n_region: usize, scratch: &mut Scratch) -> (Vec<(u32, Map)>, Vec<u32>) {
+        let reach = self.max_abs_d + self.edge_reach_max;
+        if self.max_abs_d <= 0.0 || n_region == 0 {
+            return (Vec::new(), Vec::new());
         }
         let mut lo = DVec3::splat(f64::INFINITY);
         let mut hi = DVec3::splat(f64::NEG_INFINITY);
@@ -232,19 +354,23 @@ impl State {
         }
         let (blo, bhi) = (lo - DVec3::splat(reach), hi + DVec3::splat(reach));
         let mut cand = Vec::new();
+        let mut near = Vec::new();
         self.grid.query(blo, bhi, |v| {
             let dv = self.assoc[v as usize].d.abs();
-            if dv == 0.0 || self.dense.pinched[v as usize] {
+            if self.dense.pinched[v as usize] || c.dense.binary_search(&v).is_ok() {
                 return;
             }
             let x = self.dense.pos[v as usize];
-            if x.clamp(lo, hi).distance(x) >= dv || c.dense.binary_search(&v).is_ok() {
-                return;
+            let dist = x.clamp(lo, hi).distance(x);
+            if dist < dv {
+                cand.push(v);
+            } else if dist < dv + self.edge_reach[v as usize] {
+                near.push(v);
             }
-            cand.push(v);
         });
+        near.sort_unstable();
         if cand.is_empty() {
-            return Vec::new();
+            return (Vec::new(), near);
         }
         cand.sort_unstable();
         let mut region = Tris::default();
@@ -259,13 +385,13 @@ impl State {
             let cur = self.assoc[v as usize];
             let x = self.dense.pos[v as usize];
             dense.vertex_normals(v, &mut normals);
-            if let Found::Hit(t, h) = find_primary(x, &normals, &region, self.mode, cur.d.abs(), true, false, scratch) {
-                if h.d.abs() < cur.d.abs() {
-                    out.push((v, Map { face: region.ids[t], bary: h.bary, d: h.d }));
-                }
+            match find_primary(x, &normals, &region, self.mode, cur.d.abs(), true, false, scratch) {
+                Found::Hit(t, h) if h.d.abs() < cur.d.abs() => out.push((v, Map { face: region.ids[t], bary: h.bary, d: h.d })),
+                _ => near.push(v),
             }
         }
-        out
+        near.sort_unstable();
+        (out, near)
     }
 
     /// Association of a pinched vertex without any solution: the nearest triangle's centre.
@@ -282,14 +408,32 @@ impl State {
 
 }
 
+/// How far beyond its ends' largest |d| a point of a dense edge is searched without a grid query.
+/// Why: a midpoint's |d| rarely exceeds its ends' by much; twice covers the cases measured, and
+/// a larger one falls back to a query of its own (never a wrong answer, only a slower one).
+const OUTER_REACH: f64 = 2.0;
+
+/// The faces outside a candidate's neighbourhood that its bisection midpoints may reach, and the
+/// box they cover.
+struct Outer {
+    tris: Tris,
+    lo: DVec3,
+    hi: DVec3,
+}
+
 /// Map context during a candidate's evaluation: tested vertices use the new maps and the
 /// collapsed neighbourhood; everything else the committed state.
 struct CandidateContext<'a> {
     st: &'a State,
     c: &'a Candidate,
     tris: &'a Tris,
+    /// The dense faces checked.
+    faces: &'a [u32],
+    outer: std::cell::OnceCell<Outer>,
     maps: &'a [Map],
     extras: &'a [(u32, Map)],
+    /// Faces outside the neighbourhood that bisection midpoints were solved on.
+    reads: std::cell::RefCell<Vec<u32>>,
 }
 
 impl MapContext for CandidateContext<'_> {
@@ -326,35 +470,88 @@ impl MapContext for CandidateContext<'_> {
         self.st.topo.faces_around(v0, &mut s, &mut fs);
         fs.into_iter().find(|&f| holds(&self.st.topo.face(f)) && self.c.region.binary_search(&f).is_err())
     }
-    fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map> {
-        // The neighbourhood, plus the (unchanged) faces around an end that maps outside it.
-        if self.tris.index_of(fa).is_some() && self.tris.index_of(fb).is_some() {
-            return match find_primary(x, normals, self.tris, self.st.mode, self.st.dmax, true, false, scratch) {
-                Found::Hit(t, h) => Some(Map { face: self.tris.ids[t], bary: h.bary, d: h.d }),
-                _ => None,
-            };
+    fn faces_around(&self, v: u32, out: &mut Vec<u32>) {
+        out.clear();
+        if v == self.c.w {
+            return;
         }
-        let mut tris = self.tris.clone();
-        let (mut s, mut tmp) = (Vec::new(), Vec::new());
-        for f in [fa, fb] {
-            if self.tris.index_of(f).is_some() {
-                continue;
+        if v == self.c.u || self.c.changed.contains(&v) {
+            out.extend(self.tris.verts.iter().zip(self.tris.ids.iter()).filter(|(t, _)| t.contains(&v)).map(|(_, &f)| f));
+            return;
+        }
+        let mut s = Vec::new();
+        self.st.topo.faces_around(v, &mut s, out);
+    }
+    fn mode(&self) -> NormalMode {
+        self.st.mode
+    }
+    fn dmax(&self) -> f64 {
+        self.st.dmax
+    }
+    fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map> {
+        let st = self.st;
+        let tie = crate::eval::SAME_SOLUTION_REL * st.dmax;
+        // Smallest |d|, ties to the lowest face id: the rule of one search over the union.
+        let pick = |best: Option<Map>, far: &Tris, found: Found| -> Option<Map> {
+            let Found::Hit(t, h) = found else { return best };
+            let better = match best {
+                None => true,
+                Some(cur) => {
+                    let (da, db) = (h.d.abs(), cur.d.abs());
+                    da < db - tie || (da <= db + tie && far.ids[t] < cur.face)
+                }
+            };
+            if better {
+                Some(Map { face: far.ids[t], bary: h.bary, d: h.d })
+            } else {
+                best
             }
-            for v in self.st.topo.face(f) {
-                self.st.topo.faces_around(v, &mut s, &mut tmp);
-                for &g in &tmp {
-                    if tris.index_of(g).is_none() {
-                        let info = self.st.face_info_current(g);
-                        tris.push(g, info.verts, info.pos, info.dir);
-                    }
+        };
+        let hint = |t: &Tris| -> [usize; 2] { [t.index_of(fa).unwrap_or(usize::MAX), t.index_of(fb).unwrap_or(usize::MAX)] };
+        let mut best =
+            pick(None, self.tris, find_primary_hinted(x, normals, self.tris, st.mode, st.dmax, true, false, &hint(self.tris), scratch));
+        // Outside the neighbourhood, the same reach as a vertex's: a face holding a smaller |d|
+        // lies within |d| of x. First the faces around the checked triangles, then, if the
+        // reach leaves their box, a grid query of this point's own.
+        let outer = self.outer.get_or_init(|| st.outer_faces(self.c, self.tris, self.faces, self.maps, self.extras));
+        let mut reads = Vec::new();
+        let mut search = |best: Option<Map>, far: &Tris, scratch: &mut Scratch| -> Option<Map> {
+            if far.is_empty() {
+                return best;
+            }
+            let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
+            for t in 0..far.len() {
+                if crate::geometry::sphere_lower_bound(x, far.sphere[t].0, far.sphere[t].1) <= reach {
+                    reads.push(far.ids[t]);
                 }
             }
+            pick(best, far, find_primary_hinted(x, normals, far, st.mode, reach.min(st.dmax), true, false, &hint(far), scratch))
+        };
+        best = search(best, &outer.tris, scratch);
+        let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
+        let (blo, bhi) = (x - DVec3::splat(reach), x + DVec3::splat(reach));
+        if !(blo.cmpge(outer.lo).all() && bhi.cmple(outer.hi).all()) {
+            let mut faces = Vec::new();
+            st.face_grid.query(blo, bhi, &mut faces);
+            let mut t = Tris::default();
+            for f in faces {
+                if self.tris.index_of(f).is_some()
+                    || outer.tris.index_of(f).is_some()
+                    || self.c.region.binary_search(&f).is_ok()
+                    || !st.topo.face_alive(f)
+                {
+                    continue;
+                }
+                let info = st.face_info_current(f);
+                if crate::geometry::triangle_distance(x, &info.pos) <= reach {
+                    t.push(f, info.verts, info.pos, info.dir);
+                }
+            }
+            t.finish();
+            best = search(best, &t, scratch);
         }
-        tris.finish();
-        match find_primary(x, normals, &tris, self.st.mode, self.st.dmax, true, false, scratch) {
-            Found::Hit(t, h) => Some(Map { face: tris.ids[t], bary: h.bary, d: h.d }),
-            _ => None,
-        }
+        self.reads.borrow_mut().extend_from_slice(&reads);
+        best
     }
 }
 

@@ -199,6 +199,10 @@ enum Cmd {
         /// Worker threads (default: all cores).
         #[arg(long)]
         threads: Option<usize>,
+        /// Brute force: every dense point against every base triangle, no BVH and no culling
+        /// (slow; cross-checks the fast path). Runs on the CPU.
+        #[arg(long)]
+        exhaustive: bool,
     },
     /// Bake the displacement map of HIGH over BASE's atlas: DISP.exr or DISP.pfm (32-bit float)
     /// or DISP.png (16-bit), with DISP.ext.json (kind, quantisation) and DISP.obj (BASE with the
@@ -410,7 +414,14 @@ fn run(cli: Cli) -> Result<i32> {
                 if r.global.valid {
                     "valid".to_string()
                 } else {
-                    format!("INVALID (unmapped {}, flipped {}, torn {})", r.global.unmapped, r.global.flipped, r.global.torn)
+                    format!(
+                        "INVALID (unmapped {}, flipped {}, torn {}, jump edges {}{})",
+                        r.global.unmapped,
+                        r.global.flipped,
+                        r.global.torn,
+                        r.global.checks.jump_edges,
+                        if r.global.strict { format!(", ambiguous {}", r.global.ambiguous) } else { String::new() }
+                    )
                 },
                 r.max_abs_d,
                 r.dmax
@@ -421,8 +432,9 @@ fn run(cli: Cli) -> Result<i32> {
             }
             Ok(0)
         }
-        Cmd::Validate { high, base, json, fold_image, resolution, dmax, strict, no_strict, normals, prep, backend, threads } => {
+        Cmd::Validate { high, base, json, fold_image, resolution, dmax, strict, no_strict, normals, prep, backend, threads, exhaustive } => {
             let job = dispdec::run::ValidateJob {
+                exhaustive,
                 backend: backend_of(backend),
                 high,
                 base,
@@ -437,7 +449,7 @@ fn run(cli: Cli) -> Result<i32> {
             say.warnings(&r.warnings);
             say.note(&r.backend_note);
             say.line(&format!(
-                "{} against {}: {} ({} dense vertices: {} mapped, {} unmapped, {} pinched, {} ambiguous, {} far hits; {} dense faces: {} flipped, {} torn); max |d| {:.4}, RMS d {:.4}, dmax {:.4}; coverage per base face {:.3}..{:.3}, {} fold and {} hole texels; {:.2} s",
+                "{} against {}: {} ({} dense vertices: {} mapped, {} unmapped, {} pinched, {} ambiguous, {} far hits; {} dense faces: {} flipped, {} torn; {} jump edges, largest jump {:.3e}; {} straddling faces judged in charts){}; max |d| {:.4}, RMS d {:.4}, dmax {:.4}; coverage per base face {:.3}..{:.3}, {} fold and {} hole texels; {:.2} s",
                 r.base,
                 r.high,
                 if v.valid { "VALID" } else { "INVALID" },
@@ -450,6 +462,10 @@ fn run(cli: Cli) -> Result<i32> {
                 v.dense_faces,
                 v.flipped,
                 v.torn,
+                v.checks.jump_edges,
+                v.checks.max_jump,
+                v.checks.straddling,
+                if v.exhaustive { " [exhaustive]" } else { "" },
                 v.max_abs_d,
                 v.rms_d,
                 v.dmax,

@@ -2,7 +2,7 @@
 
 use crate::decimate::{Options, State, Stats};
 use crate::topology::topology_summary;
-use crate::validate::Recheck;
+use crate::recheck::Recheck;
 use crate::eval::{CpuEvaluator, Evaluator, NormalMode};
 use crate::gpu_eval::{BandStats, GpuEvaluator};
 use crate::mapfile::{MapFile, Record, STATUS_MAPPED, STATUS_PINCHED, STATUS_UNREFERENCED};
@@ -202,14 +202,14 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
     let t_check = Instant::now();
 
     let base = state.compact();
+    // The final word: the independent global check, strict when the run was (SPEC §1).
+    let mut check = crate::validate::CheckOptions::new(job.options.normals, state.dmax);
+    check.strict = job.options.strict;
     let (global, _) = crate::validate::validate_on(
         &state.dense,
         &crate::validate::Base { positions: base.positions.clone(), directions: base.directions.clone(), faces: base.faces.clone() },
-        job.options.normals,
-        state.dmax,
-        false,
-        false,
-        gpu.as_ref(),
+        &check,
+        gpu.as_ref().map(|g| g as &dyn crate::validate::Project),
     )?;
     let t_global = Instant::now();
     let (_, loops_out) = topology_summary(base.positions.len(), &base.faces);
@@ -359,6 +359,8 @@ pub struct ValidateJob {
     pub flags: Flags,
     pub threads: Option<usize>,
     pub backend: Backend,
+    /// Brute force: every dense point against every base triangle (cross-checks the fast path).
+    pub exhaustive: bool,
 }
 
 /// One failing element, by its index in the input file and its position.
@@ -467,7 +469,15 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
     let b = &loaded.base;
     let dense = mesh::DenseData::new(&high.positions, &high.faces);
     let (gpu, backend_note) = open_backend(job.backend, &dense)?;
-    let (verdict, maps) = crate::validate::validate_on(&dense, b, normals, dmax, strict, true, gpu.as_ref())?;
+    let check = crate::validate::CheckOptions {
+        mode: normals,
+        dmax,
+        strict,
+        second: true,
+        exhaustive: job.exhaustive,
+        compare_chords: true,
+    };
+    let (verdict, maps) = crate::validate::validate_on(&dense, b, &check, gpu.as_ref().map(|g| g as &dyn crate::validate::Project))?;
     let fold = crate::fold::fold_image(&dense, b, &maps, normals, dmax, job.resolution);
     let per_face = fold.coverage();
     let coverage = CoverageSummary {
@@ -664,7 +674,7 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
         None => None,
     };
     // The primaries of the whole scan over the whole base: the map inverts exactly these.
-    let (verdict, maps) = crate::validate::validate_on(&dense, b, normals, dmax, false, false, None)?;
+    let (verdict, maps) = crate::validate::validate_on(&dense, b, &crate::validate::CheckOptions::new(normals, dmax), None)?;
     let (map, sources) = crate::bake::bake(&dense, b, &maps, normals, dmax, job.resolution);
     let agreement = per_vertex.map(|m| {
         let mut diffs = Vec::new();

@@ -5,9 +5,8 @@
 //! Triangles are visited best-first by a lower bound on |d| (the distance from the point to a
 //! BVH node's box, then to the triangle), so a vertex costs a handful of cubic solves.
 
-use crate::eval::{check_faces_and_edges, find_primary, FaceInfo, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
 use crate::bvh::Bvh;
-use crate::decimate::State;
+use crate::guarantee::{check_face, find_primary, solve_tri, direction_at, CheckScratch, CheckStats, FaceCheck, FaceInfo, Found, Map, MapContext, NormalMode, Scratch, Tris, SAME_SOLUTION_REL};
 use crate::mesh::{vertex_faces, DenseData};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -55,6 +54,10 @@ pub struct Verdict {
     /// Internal indices of the first flipped and torn dense faces.
     pub first_flipped: Vec<u32>,
     pub first_torn: Vec<u32>,
+    /// Judged by brute force (`--exhaustive`).
+    pub exhaustive: bool,
+    /// Jump edges and the largest jump (SPEC §1), straddling triangles and their charts.
+    pub checks: CheckStats,
 }
 
 /// Candidate triangles for one point: the exact search set of a best-first query, as [`Tris`].
@@ -78,6 +81,8 @@ struct ValidateContext<'a> {
     pinched: &'a [bool],
     mode: NormalMode,
     dmax: f64,
+    /// Every base triangle, for `--exhaustive`.
+    all: Option<&'a Tris>,
 }
 
 /// First search radius of [`primary_global`], as a fraction of dmax.
@@ -118,10 +123,49 @@ pub(crate) fn primary_global(
 
 impl ValidateContext<'_> {
     fn solve(&self, x: DVec3, normals: &[DVec3], scratch: &mut Scratch) -> Option<Map> {
+        if let Some(all) = self.all {
+            return primary_exhaustive(all, x, normals, self.mode, self.dmax, true);
+        }
         let mut near = Vec::new();
         let mut tris = Tris::default();
         primary_global(self.base, self.bvh, x, normals, self.mode, self.dmax, true, scratch, &mut near, &mut tris)
     }
+}
+
+/// Every base triangle as one [`Tris`] (for `--exhaustive`).
+pub fn all_tris(base: &Base) -> Tris {
+    let mut all = Tris::default();
+    for (f, t) in base.faces.iter().enumerate() {
+        all.push(f as u32, *t, t.map(|v| base.positions[v as usize]), t.map(|v| base.directions[v as usize]));
+    }
+    all.finish();
+    all
+}
+
+/// The primary solution of `x` by brute force (`validate --exhaustive`): every solution on every
+/// base triangle, no BVH, no bounds, no early exit; the smallest |d| satisfying (4), ties to the
+/// lowest face id — the rule of [`find_primary`], computed the slow way to cross-check it.
+pub fn primary_exhaustive(all: &Tris, x: DVec3, normals: &[DVec3], mode: NormalMode, dmax: f64, check4: bool) -> Option<Map> {
+    let tie = SAME_SOLUTION_REL * dmax;
+    let mut best: Option<Map> = None;
+    for t in 0..all.len() {
+        for h in solve_tri(x, all, t, mode, dmax).iter() {
+            if check4 && !crate::geometry::condition4(direction_at(all, t, &h, mode), normals.iter().copied()) {
+                continue;
+            }
+            let better = match best {
+                None => true,
+                Some(b) => {
+                    let (da, db) = (h.d.abs(), b.d.abs());
+                    da < db - tie || (da <= db + tie && all.ids[t] < b.face)
+                }
+            };
+            if better {
+                best = Some(Map { face: all.ids[t], bary: h.bary, d: h.d });
+            }
+        }
+    }
+    best
 }
 
 impl MapContext for ValidateContext<'_> {
@@ -146,8 +190,30 @@ impl MapContext for ValidateContext<'_> {
             .copied()
             .find(|&f| verts.iter().all(|w| self.base.faces[f as usize].contains(w)))
     }
+    fn faces_around(&self, v: u32, out: &mut Vec<u32>) {
+        out.clear();
+        let v = v as usize;
+        out.extend_from_slice(&self.vf[self.vf_start[v] as usize..self.vf_start[v + 1] as usize]);
+    }
+    fn mode(&self) -> NormalMode {
+        self.mode
+    }
+    fn dmax(&self) -> f64 {
+        self.dmax
+    }
     fn solve_point(&self, x: DVec3, normals: &[DVec3], _fa: u32, _fb: u32, scratch: &mut Scratch) -> Option<Map> {
-        self.solve(x, normals, scratch)
+        let r = self.solve(x, normals, scratch);
+        if r.is_none() && std::env::var("DISPDEC_DEBUG_JUMPS").is_ok() {
+            let mut near = Vec::new();
+            let mut tris = Tris::default();
+            let no4 = primary_global(self.base, self.bvh, x, normals, self.mode, self.dmax, false, scratch, &mut near, &mut tris);
+            eprintln!("no solution at {x:?} (normals {normals:?}); without (4): {no4:?}");
+            if let Some(m) = no4 {
+                let info = self.face_info(m.face);
+                eprintln!("   N(X) = {:?}", crate::geometry::interpolate_direction(&info.dir, &m.bary));
+            }
+        }
+        r
     }
 }
 
@@ -171,12 +237,12 @@ fn second_solutions(
     };
     let (mut amb, mut far) = (false, false);
     for t in 0..tris.len() {
-        for h in crate::eval::solve_tri(x, tris, t, mode, dmax).iter() {
-            if !crate::geometry::condition4(crate::eval::direction_at(tris, t, &h, mode), normals.iter().copied()) {
+        for h in solve_tri(x, tris, t, mode, dmax).iter() {
+            if !crate::geometry::condition4(direction_at(tris, t, &h, mode), normals.iter().copied()) {
                 continue;
             }
             let p = crate::geometry::interpolate_direction(&tris.pos[t], &h.bary);
-            if p.distance(p0) <= crate::eval::SAME_SOLUTION_REL * dmax {
+            if p.distance(p0) <= SAME_SOLUTION_REL * dmax {
                 continue; // the primary itself, seen from a neighbouring face
             }
             if faces_touch(tris.ids[t], primary.face) {
@@ -189,31 +255,50 @@ fn second_solutions(
     (amb, far)
 }
 
-/// Judges `base` against the dense mesh over the whole base mesh. With `second`, every mapped
-/// vertex's other solutions are classified too (ambiguous or far hit); `strict` makes an
-/// ambiguous vertex invalid (and implies `second`).
-pub fn validate(dense: &DenseData, base: &Base, mode: NormalMode, dmax: f64, strict: bool, second: bool) -> Verdict {
-    validate_with_maps(dense, base, mode, dmax, strict, second).0
+/// How a check is made.
+#[derive(Clone, Copy, Debug)]
+pub struct CheckOptions {
+    pub mode: NormalMode,
+    pub dmax: f64,
+    /// The paper's uniqueness: an ambiguous vertex makes the base invalid (implies `second`).
+    pub strict: bool,
+    /// Classify every mapped vertex's other solutions (ambiguous, far hit).
+    pub second: bool,
+    /// Brute force: every point against every base triangle, no BVH, no culling.
+    pub exhaustive: bool,
+    /// Also judge straddling triangles by the first release's chord rule, and count where it
+    /// differs.
+    pub compare_chords: bool,
+}
+
+impl CheckOptions {
+    pub fn new(mode: NormalMode, dmax: f64) -> CheckOptions {
+        CheckOptions { mode, dmax, strict: false, second: false, exhaustive: false, compare_chords: false }
+    }
+}
+
+/// A device that can project every dense vertex onto a base (the GPU); the validator knows it
+/// only through this trait.
+pub trait Project {
+    fn project(&self, dense: &DenseData, base: &Base, bvh: &Bvh, mode: NormalMode, dmax: f64) -> Result<Vec<Option<Map>>, crate::gpu::GpuError>;
+}
+
+/// Judges `base` against the dense mesh over the whole base mesh.
+pub fn validate(dense: &DenseData, base: &Base, opts: &CheckOptions) -> Verdict {
+    validate_with_maps(dense, base, opts).0
 }
 
 /// [`validate`], also returning every dense vertex's primary solution (`None`: unmapped or
 /// pinched), for the fold image.
-pub fn validate_with_maps(
-    dense: &DenseData,
-    base: &Base,
-    mode: NormalMode,
-    dmax: f64,
-    strict: bool,
-    second: bool,
-) -> (Verdict, Vec<Option<Map>>) {
-    match validate_on(dense, base, mode, dmax, strict, second, None) {
+pub fn validate_with_maps(dense: &DenseData, base: &Base, opts: &CheckOptions) -> (Verdict, Vec<Option<Map>>) {
+    match validate_on(dense, base, opts, None) {
         Ok(r) => r,
         Err(e) => unreachable!("the CPU projection cannot fail: {e}"),
     }
 }
 
 /// The primary solution of every dense vertex over the whole base, on the CPU.
-fn project_cpu(dense: &DenseData, base: &Base, bvh: &Bvh, mode: NormalMode, dmax: f64) -> Vec<Option<Map>> {
+fn project_cpu(dense: &DenseData, base: &Base, bvh: &Bvh, all: Option<&Tris>, mode: NormalMode, dmax: f64) -> Vec<Option<Map>> {
     (0..dense.pos.len() as u32)
         .into_par_iter()
         .map_init(
@@ -222,7 +307,10 @@ fn project_cpu(dense: &DenseData, base: &Base, bvh: &Bvh, mode: NormalMode, dmax
                 dense.vertex_normals(v, normals);
                 let x = dense.pos[v as usize];
                 let pinched = dense.pinched[v as usize];
-                primary_global(base, bvh, x, normals, mode, dmax, !pinched, scratch, near, tris)
+                match all {
+                    Some(all) => primary_exhaustive(all, x, normals, mode, dmax, !pinched),
+                    None => primary_global(base, bvh, x, normals, mode, dmax, !pinched, scratch, near, tris),
+                }
             },
         )
         .collect()
@@ -230,30 +318,36 @@ fn project_cpu(dense: &DenseData, base: &Base, bvh: &Bvh, mode: NormalMode, dmax
 
 /// [`validate_with_maps`] with the projection step on `gpu` when given (the GPU decides each
 /// vertex's primary triangle; the tolerance band and the d values are settled in f64, so the
-/// verdict is the CPU's).
+/// verdict is the CPU's). `--exhaustive` never uses the GPU.
 pub fn validate_on(
     dense: &DenseData,
     base: &Base,
-    mode: NormalMode,
-    dmax: f64,
-    strict: bool,
-    second: bool,
-    gpu: Option<&crate::gpu_eval::GpuEvaluator>,
+    opts: &CheckOptions,
+    gpu: Option<&dyn Project>,
 ) -> Result<(Verdict, Vec<Option<Map>>), crate::gpu::GpuError> {
-    let second = second || strict;
+    let (mode, dmax, strict) = (opts.mode, opts.dmax, opts.strict);
+    let second = opts.second || strict;
     let bvh = Bvh::build(&base.positions, &base.faces);
-    let adj = dense;
+    let all_owned = opts.exhaustive.then(|| all_tris(base));
+    let all = all_owned.as_ref();
     let maps: Vec<Option<Map>> = match gpu {
-        Some(g) => g.project(dense, base, &bvh, mode, dmax)?,
-        None => project_cpu(dense, base, &bvh, mode, dmax),
+        Some(g) if all.is_none() => g.project(dense, base, &bvh, mode, dmax)?,
+        _ => project_cpu(dense, base, &bvh, all, mode, dmax),
     };
     let (vf_start, vf) = vertex_faces(base.positions.len(), &base.faces);
-    let ctx = ValidateContext { base, vf_start, vf, bvh: &bvh, maps: &maps, pinched: &dense.pinched, mode, dmax };
-    let failures: Vec<(u32, Reject)> = (0..dense.faces.len() as u32)
+    let ctx = ValidateContext { base, vf_start, vf, bvh: &bvh, maps: &maps, pinched: &dense.pinched, mode, dmax, all };
+    let results: Vec<(u32, FaceCheck, CheckStats)> = (0..dense.faces.len() as u32)
         .into_par_iter()
-        .map_init(Scratch::default, |scratch, f| check_faces_and_edges(&ctx, adj, &[f], |_| true, scratch).err().map(|r| (f, r)))
-        .flatten()
+        .map_init(CheckScratch::default, |sc, f| {
+            let mut stats = CheckStats::default();
+            let r = check_face(&ctx, dense, f, opts.compare_chords, sc, &mut stats);
+            (f, r, stats)
+        })
         .collect();
+    let mut checks = CheckStats::default();
+    for r in &results {
+        checks.add(&r.2);
+    }
     let status: Vec<VertexStatus> = (0..dense.pos.len())
         .map(|v| {
             if dense.pinched[v] {
@@ -267,8 +361,8 @@ pub fn validate_on(
         .collect();
     let unmapped: Vec<u32> =
         status.iter().enumerate().filter(|(_, s)| **s == VertexStatus::Unmapped).map(|(i, _)| i as u32).collect();
-    let flipped: Vec<u32> = failures.iter().filter(|r| r.1 == Reject::Flip).map(|r| r.0).collect();
-    let torn: Vec<u32> = failures.iter().filter(|r| r.1 == Reject::Tear).map(|r| r.0).collect();
+    let flipped: Vec<u32> = results.iter().filter(|r| r.1 == FaceCheck::Flipped).map(|r| r.0).collect();
+    let torn: Vec<u32> = results.iter().filter(|r| r.1 == FaceCheck::Torn).map(|r| r.0).collect();
     let (ambiguous, far_hits) = if second {
         let touch = |a: u32, b: u32| {
             let (fa, fb) = (base.faces[a as usize], base.faces[b as usize]);
@@ -311,137 +405,10 @@ pub fn validate_on(
         first_unmapped: unmapped.into_iter().take(10).collect(),
         first_flipped: flipped.into_iter().take(10).collect(),
         first_torn: torn.into_iter().take(10).collect(),
+        exhaustive: opts.exhaustive,
+        checks,
     };
     let maps = maps.into_iter().enumerate().map(|(v, m)| if dense.pinched[v] { None } else { m }).collect();
     Ok((verdict, maps))
 }
 
-// ---------------------------------------------------------------------------------------------
-// The local re-check of a decimation state.
-
-impl State {
-    /// From-scratch re-check of the guarantee over every dense vertex's neighbourhood: each
-    /// vertex is solved again over the 2-ring of the base face it is associated with, then
-    /// every dense triangle's orientation and every dense edge's continuity are checked.
-    pub fn recheck(&self) -> Recheck {
-        let nf = self.topo.num_faces_total() as u32;
-        let per_face: Vec<Vec<(u32, Option<Map>, bool)>> = (0..nf)
-            .into_par_iter()
-            .map(|f| {
-                if !self.topo.face_alive(f) || self.face_dense[f as usize].is_empty() {
-                    return Vec::new();
-                }
-                let mut tris = Tris::default();
-                self.two_ring_tris(f, &mut tris);
-                let mut scratch = Scratch::default();
-                let mut normals = Vec::new();
-                let dense = &self.dense;
-                self.face_dense[f as usize]
-                    .iter()
-                    .map(|&v| {
-                        dense.vertex_normals(v, &mut normals);
-                        let pinched = self.dense.pinched[v as usize];
-                        let x = self.dense.pos[v as usize];
-                        let r = match find_primary(x, &normals, &tris, self.mode, self.dmax, !pinched, false, &mut scratch) {
-                            Found::Hit(t, h) => Some(Map { face: tris.ids[t], bary: h.bary, d: h.d }),
-                            _ => None,
-                        };
-                        // The paper's uniqueness, reported (over this 2-ring) in strict mode.
-                        let ambiguous = self.strict
-                            && !pinched
-                            && find_primary(x, &normals, &tris, self.mode, self.dmax, true, true, &mut scratch) == Found::Ambiguous;
-                        (v, r, ambiguous)
-                    })
-                    .collect()
-            })
-            .collect();
-        let mut maps: Vec<Option<Map>> = vec![None; self.dense.pos.len()];
-        let mut unmapped = Vec::new();
-        let mut ambiguous = 0;
-        for (v, m, amb) in per_face.into_iter().flatten() {
-            if m.is_none() && !self.dense.pinched[v as usize] {
-                unmapped.push(v);
-            }
-            ambiguous += amb as usize;
-            maps[v as usize] = m;
-        }
-        unmapped.sort_unstable();
-        let ctx = GlobalContext { st: self, maps: &maps };
-        let dense = &self.dense;
-        let failures: Vec<(u32, Reject)> = (0..self.dense.faces.len() as u32)
-            .into_par_iter()
-            .filter_map(|f| {
-                let mut scratch = Scratch::default();
-                check_faces_and_edges(&ctx, &dense, &[f], |_| true, &mut scratch).err().map(|r| (f, r))
-            })
-            .collect();
-        let flipped = failures.iter().filter(|(_, r)| *r == Reject::Flip).map(|(f, _)| *f).collect();
-        let torn = failures.iter().filter(|(_, r)| *r == Reject::Tear).map(|(f, _)| *f).collect();
-        let max_abs_d = maps.iter().flatten().map(|m| m.d.abs()).fold(0.0, f64::max);
-        Recheck {
-            unmapped,
-            flipped,
-            torn,
-            pinched: self.dense.pinched.iter().filter(|&&p| p).count(),
-            ambiguous,
-            max_abs_d,
-        }
-    }
-
-}
-
-/// Result of [`State::recheck`].
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct Recheck {
-    pub unmapped: Vec<u32>,
-    pub flipped: Vec<u32>,
-    pub torn: Vec<u32>,
-    pub pinched: usize,
-    /// (strict mode) vertices with more than one solution satisfying (4) on their 2-ring.
-    pub ambiguous: usize,
-    pub max_abs_d: f64,
-}
-
-impl Recheck {
-    pub fn ok(&self) -> bool {
-        self.unmapped.is_empty() && self.flipped.is_empty() && self.torn.is_empty()
-    }
-}
-
-/// Map context of the re-check: recomputed maps, current base mesh.
-struct GlobalContext<'a> {
-    st: &'a State,
-    maps: &'a [Option<Map>],
-}
-
-impl MapContext for GlobalContext<'_> {
-    fn map_of(&self, v: u32) -> Option<Map> {
-        if self.st.dense.pinched[v as usize] {
-            return None;
-        }
-        // An unmapped vertex is already counted; its triangles cannot be drawn.
-        self.maps[v as usize]
-    }
-    fn face_info(&self, face: u32) -> FaceInfo {
-        self.st.face_info_current(face)
-    }
-    fn face_containing(&self, verts: &[u32]) -> Option<u32> {
-        self.st.face_containing(verts)
-    }
-    fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map> {
-        let mut tris = Tris::default();
-        self.st.two_ring_tris(fa, &mut tris);
-        let mut more = Tris::default();
-        self.st.two_ring_tris(fb, &mut more);
-        for t in 0..more.len() {
-            if tris.index_of(more.ids[t]).is_none() {
-                tris.push(more.ids[t], more.verts[t], more.pos[t], more.dir[t]);
-            }
-        }
-        tris.finish();
-        match find_primary(x, normals, &tris, self.st.mode, self.st.dmax, true, false, scratch) {
-            Found::Hit(t, h) => Some(Map { face: tris.ids[t], bary: h.bary, d: h.d }),
-            _ => None,
-        }
-    }
-}

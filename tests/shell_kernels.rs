@@ -227,8 +227,8 @@ fn validate_projection_on_gpu_equals_cpu() {
     let base = dispdec::run::load_base_with_directions(&qem).unwrap().base;
     let dmax = 0.1 * dispdec::mesh::bbox_diagonal(scan.positions.iter().copied());
     let ev = GpuEvaluator::new(gpu, &dense).unwrap();
-    let (cv, cm) = dispdec::validate::validate_on(&dense, &base, NormalMode::Interpolated, dmax, false, false, None).unwrap();
-    let (gv, gm) = dispdec::validate::validate_on(&dense, &base, NormalMode::Interpolated, dmax, false, false, Some(&ev)).unwrap();
+    let (cv, cm) = dispdec::validate::validate_on(&dense, &base, &dispdec::validate::CheckOptions::new(NormalMode::Interpolated, dmax), None).unwrap();
+    let (gv, gm) = dispdec::validate::validate_on(&dense, &base, &dispdec::validate::CheckOptions::new(NormalMode::Interpolated, dmax), Some(&ev as &dyn dispdec::validate::Project)).unwrap();
     let s = ev.stats();
     eprintln!(
         "validate parity (bunny, {} meshoptimizer faces): {} vertices; gpu decided {} hits + {} none; band {} ties + {} marginal ({:.2} %); disagreements {}; unmapped {} / {}, flipped {} / {}",

@@ -1,0 +1,1003 @@
+//! The exact checks of SPEC §1 over primary solutions, shared by the decimator's local test, its
+//! re-check and the validator:
+//!
+//! - **continuity**: every dense edge is walked by bisection ([`edge_image`]) until consecutive
+//!   images converge or a jump stays open; a jump is a tear, *also* between base triangles that
+//!   share a vertex (the shells of neighbouring triangles overlap and the smallest |d| switches);
+//! - **orientation**: the image of a dense triangle is the closed loop of its three edges'
+//!   samples, laid out in an intrinsic chart of the base ([`loop_positive`]): one base
+//!   triangle's barycentric plane; else the 1-ring of a base vertex whose star holds the whole
+//!   loop, unfolded around it; else a chain of triangles unfolded along the loop. It is flipped
+//!   iff its signed area is ≤ 0 or it crosses itself. Straight chords between the three vertex
+//!   images are used only where they are the same test: every sample on one base triangle.
+//!
+//! ```text
+//!   dense edge a ──────────────── b        images on L:   A ●────●╌╌╌╌●────● B
+//!   bisected where the two ends map to                        T1   jump    T2
+//!   different base triangles: a continuous                   (the gap stays open under
+//!   image converges, a jump stays open                        every bisection: a tear)
+//! ```
+
+use super::primary::{FaceInfo, Map, NormalMode, Scratch};
+use crate::geometry::{self, interpolate_direction};
+use crate::mesh::DenseData;
+use glam::{DVec2, DVec3};
+
+/// Bisection depth to which a piece whose ends map to two different (touching) base triangles is
+/// always refined before its gap is compared with the stretch.
+/// Why: 2^-8 of the edge; a jump larger than STRETCH_RATIO × 2^-8 ≈ 0.8 % of the edge's image
+/// is then seen as a gap the stretch cannot explain (measured jumps are 7–90 % of an edge).
+pub const CROSS_DEPTH: u32 = 8;
+
+/// Newton steps allowed to find where a solution path crosses a base edge.
+/// Why: the barycentric is smooth along the path; 2–3 steps reach 1e-12 in the cases measured.
+const CROSSING_ITERATIONS: usize = 8;
+
+/// A crossing point's barycentric across the edge is this close to 0.
+/// Why: well inside BARY_EPS, so that the point counts as on the edge for both triangles.
+const CROSSING_TOL: f64 = 1e-11;
+
+/// Counters for profiling (solves of bisection midpoints, edges walked).
+pub static MIDPOINTS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+pub static EDGES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+pub static FACES_OWN: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+pub static FACES_ALL: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// Deepest bisection of a dense edge: a gap still open at this depth is a jump.
+/// Why: SPEC §1 — a jump is certain when it stays open under 30+ bisections.
+pub const MAX_DEPTH: u32 = 32;
+
+/// A piece is continuous when its images are no farther apart than this many times the local
+/// stretch of the projection (|dX/dx| along the edge, exact from the shell's Jacobian at both
+/// ends) times the piece's length.
+/// Why: over a short piece a continuous image moves by at most the larger end stretch times the
+/// length, up to second-order terms; 2× leaves room for those and for curved image paths.
+pub const STRETCH_RATIO: f64 = 2.0;
+
+/// At [`MAX_DEPTH`] a gap below this fraction of the dense edge's length has converged.
+/// Why: a continuous image with a square-root singularity (the focal surface) still moves
+/// ~1.5e-5 of an edge over 2^-32 of it; a jump stays at its full size.
+pub const JUMP_FLOOR_REL: f64 = 1e-4;
+
+/// Images closer than this (relative to dmax) are the same point.
+/// Why: far below any dense edge, above f64 noise in positions of magnitude ~dmax.
+pub const SAME_POINT_REL: f64 = 1e-12;
+
+/// What the checks need from their surroundings (the decimator's candidate, its re-check, or
+/// the validator's whole base).
+pub trait MapContext {
+    /// The map of a dense vertex, `None` for a pinched vertex (exempt) or an unmapped one
+    /// (counted elsewhere).
+    fn map_of(&self, v: u32) -> Option<Map>;
+    fn face_info(&self, face: u32) -> FaceInfo;
+    /// A live base face containing all of `verts` (one to three vertices), if there is one.
+    fn face_containing(&self, verts: &[u32]) -> Option<u32>;
+    /// The live base faces around base vertex `v`, in any order.
+    fn faces_around(&self, v: u32, out: &mut Vec<u32>);
+    /// The primary solution of a point on a dense edge (condition (4) against `normals`), over
+    /// everything that can hold it: `fa` and `fb` are the base faces of the piece's ends.
+    fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map>;
+    fn mode(&self) -> NormalMode;
+    fn dmax(&self) -> f64;
+}
+
+/// Barycentric coordinates on face `target` of the point with `bary` on face `verts`, when the
+/// point lies on `target` (its non-zero weights sit on vertices `target` shares).
+pub fn on_face(verts: &[u32; 3], bary: &[f64; 3], target: &[u32; 3]) -> Option<[f64; 3]> {
+    let mut out = [0.0; 3];
+    for i in 0..3 {
+        if bary[i] > geometry::BARY_EPS {
+            let k = target.iter().position(|&w| w == verts[i])?;
+            out[k] += bary[i];
+        }
+    }
+    Some(out)
+}
+
+/// The base vertices carrying a point (non-zero barycentric weight): one to three.
+fn support(verts: &[u32; 3], bary: &[f64; 3]) -> ([u32; 3], usize) {
+    let mut s = [0u32; 3];
+    let mut n = 0;
+    for k in 0..3 {
+        if bary[k] > geometry::BARY_EPS {
+            s[n] = verts[k];
+            n += 1;
+        }
+    }
+    (s, n)
+}
+
+/// One sample of a dense edge's image.
+#[derive(Clone, Copy, Debug)]
+pub struct Sample {
+    pub m: Map,
+    /// The base face's vertices (for charts).
+    pub verts: [u32; 3],
+    /// The image point X on L.
+    pub p: DVec3,
+    /// |dX/dx| along the edge at this point (∞ where the shell's Jacobian is singular).
+    pub sigma: f64,
+}
+
+/// The rates of change of a solution's barycentrics when x moves by `v`: x = X + d·N(X)
+/// differentiated in (a, b, d) gives the Jacobian [∂x/∂a, ∂x/∂b, N]; solving it for `v` gives
+/// (da, db) (and dc = −da − db). `None` where the Jacobian is singular.
+pub fn bary_rates(info: &FaceInfo, m: &Map, mode: NormalMode, v: DVec3) -> Option<[f64; 3]> {
+    let (p, n) = (&info.pos, &info.dir);
+    let (ea, eb) = (p[0] - p[2], p[1] - p[2]);
+    let (ca, cb, cn) = match mode {
+        NormalMode::Interpolated => (ea + m.d * (n[0] - n[2]), eb + m.d * (n[1] - n[2]), interpolate_direction(n, &m.bary)),
+        NormalMode::Constant => (ea, eb, geometry::face_normal(p[0], p[1], p[2])),
+    };
+    let bc = cb.cross(cn);
+    let det = ca.dot(bc);
+    let scale = ca.length() * cb.length() * cn.length();
+    if !(det.abs() > 1e-14 * scale) {
+        return None;
+    }
+    let alpha = v.dot(bc) / det;
+    let beta = ca.dot(v.cross(cn)) / det;
+    Some([alpha, beta, -alpha - beta])
+}
+
+/// The stretch of the projection along unit dense direction `e` at a solution: |dX/dx·e|
+/// (∞ where the shell's Jacobian is singular).
+pub fn stretch(info: &FaceInfo, m: &Map, mode: NormalMode, e: DVec3) -> f64 {
+    match bary_rates(info, m, mode, e) {
+        Some(r) => (info.pos[0] * r[0] + info.pos[1] * r[1] + info.pos[2] * r[2]).length(),
+        None => f64::INFINITY,
+    }
+}
+
+/// The solution of `x` on triangle `info` whose d is nearest `d_near`, barycentrics not
+/// clipped to the triangle (for following a solution across an edge).
+fn solution_unclipped(x: DVec3, info: &FaceInfo, mode: NormalMode, dmax: f64, d_near: f64) -> Option<Map> {
+    let p = &info.pos;
+    match mode {
+        NormalMode::Constant => {
+            let nf = geometry::face_normal(p[0], p[1], p[2]);
+            let d = (x - p[0]).dot(nf);
+            geometry::barycentric(x - d * nf, p[0], p[1], p[2]).map(|bary| Map { face: 0, bary, d })
+        }
+        NormalMode::Interpolated => {
+            let n = &info.dir;
+            let c = geometry::cubic_coeffs(x, p, n);
+            let s = 2.0 * dmax;
+            let ct = [c[0], c[1] * s, c[2] * s * s, c[3] * s * s * s];
+            let mut roots = [0.0f64; 3];
+            let nr = geometry::cubic_roots_in_unit(&ct, &mut roots);
+            let mut best: Option<Map> = None;
+            for &t in &roots[..nr] {
+                let d = t * s;
+                let q = [p[0] + d * n[0], p[1] + d * n[1], p[2] + d * n[2]];
+                if let Some(bary) = geometry::barycentric(x, q[0], q[1], q[2]) {
+                    if best.is_none_or(|b| (d - d_near).abs() < (b.d - d_near).abs()) {
+                        best = Some(Map { face: 0, bary, d });
+                    }
+                }
+            }
+            best
+        }
+    }
+}
+
+/// Where the dense segment x0 → x1 leaves triangle `t1` (on which `m0` is x0's solution) across
+/// its edge opposite corner `k`: Newton's method on that corner's barycentric along the
+/// solution path, with the exact rate from the Jacobian. `None` unless the path leaves through
+/// that edge inside the segment.
+fn edge_crossing(t1: &FaceInfo, m0: Map, k: usize, x0: DVec3, x1: DVec3, mode: NormalMode, dmax: f64) -> Option<f64> {
+    let dx = x1 - x0;
+    let (mut t, mut m) = (0.0f64, m0);
+    for _ in 0..CROSSING_ITERATIONS {
+        let rate = bary_rates(t1, &m, mode, dx)?[k];
+        if !(rate < 0.0) {
+            return None;
+        }
+        let tn = t - m.bary[k] / rate;
+        if !(tn > 0.0 && tn < 1.0) {
+            return None;
+        }
+        t = tn;
+        m = solution_unclipped(x0 + t * dx, t1, mode, dmax, m.d)?;
+        if m.bary[k].abs() <= CROSSING_TOL {
+            return Some(t);
+        }
+    }
+    None
+}
+
+fn make_sample<C: MapContext>(ctx: &C, m: Map, e: DVec3) -> Sample {
+    let info = ctx.face_info(m.face);
+    Sample { m, verts: info.verts, p: interpolate_direction(&info.pos, &m.bary), sigma: stretch(&info, &m, ctx.mode(), e) }
+}
+
+/// How the base faces of two samples relate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Relation {
+    /// Both points lie on one base face.
+    Same,
+    /// Their faces share an edge.
+    Edge,
+    /// Their faces share only a vertex (or the points lie in one vertex's closed star): which
+    /// way round the vertex the image goes is not yet known.
+    Vertex,
+    Apart,
+}
+
+fn relation<C: MapContext>(ctx: &C, a: &Sample, b: &Sample) -> Relation {
+    if a.m.face == b.m.face || on_face(&a.verts, &a.m.bary, &b.verts).is_some() || on_face(&b.verts, &b.m.bary, &a.verts).is_some() {
+        return Relation::Same;
+    }
+    match a.verts.iter().filter(|v| b.verts.contains(v)).count() {
+        0 => {}
+        1 => return Relation::Vertex,
+        _ => return Relation::Edge,
+    }
+    // Points on an edge or a vertex: their closed stars may meet through another face.
+    let (sa, na) = support(&a.verts, &a.m.bary);
+    let (sb, nb) = support(&b.verts, &b.m.bary);
+    if na == 3 && nb == 3 {
+        return Relation::Apart;
+    }
+    let in_star = |s: &[u32], w: u32| {
+        if s.contains(&w) {
+            return true;
+        }
+        if s.len() >= 3 {
+            return false;
+        }
+        let mut q = [0u32; 3];
+        q[..s.len()].copy_from_slice(s);
+        q[s.len()] = w;
+        ctx.face_containing(&q[..s.len() + 1]).is_some()
+    };
+    for w in a.verts.iter().chain(b.verts.iter()) {
+        if in_star(&sa[..na], *w) && in_star(&sb[..nb], *w) {
+            return Relation::Vertex;
+        }
+    }
+    Relation::Apart
+}
+
+/// The image of the dense edge from `xa` to `xb` (maps `ma`, `mb`): its samples in order, `ma`'s
+/// first and `mb`'s last, appended to `out`, every piece bisected at least `min_depth` times. Returns the largest gap that stays open (0: the
+/// image is continuous; ∞: a point of the edge has no solution).
+#[allow(clippy::too_many_arguments)]
+pub fn edge_image<C: MapContext>(
+    ctx: &C,
+    xa: DVec3,
+    ma: Map,
+    xb: DVec3,
+    mb: Map,
+    normals: &[DVec3],
+    min_depth: u32,
+    scratch: &mut Scratch,
+    out: &mut Vec<Sample>,
+) -> f64 {
+    EDGES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let len = xa.distance(xb);
+    let e = if len > 0.0 { (xb - xa) / len } else { DVec3::X };
+    let sa = make_sample(ctx, ma, e);
+    let sb = make_sample(ctx, mb, e);
+    out.push(sa);
+    let floors = Floors { same: SAME_POINT_REL * ctx.dmax(), jump: JUMP_FLOOR_REL * len, min_depth };
+    let mut jump = 0.0f64;
+    refine(ctx, xa, sa, xb, sb, e, normals, 0, floors, scratch, out, &mut jump);
+    jump
+}
+
+#[derive(Clone, Copy)]
+struct Floors {
+    same: f64,
+    jump: f64,
+    /// Every piece is bisected at least this deep (finer loops for orientation).
+    min_depth: u32,
+}
+
+/// Appends the samples after `s0` up to and including `s1`, bisecting the piece as SPEC §1 says.
+#[allow(clippy::too_many_arguments)]
+fn refine<C: MapContext>(
+    ctx: &C,
+    x0: DVec3,
+    s0: Sample,
+    x1: DVec3,
+    s1: Sample,
+    e: DVec3,
+    normals: &[DVec3],
+    depth: u32,
+    floors: Floors,
+    scratch: &mut Scratch,
+    out: &mut Vec<Sample>,
+    jump: &mut f64,
+) {
+    let gap = s0.p.distance(s1.p);
+    if gap <= floors.same && depth >= floors.min_depth {
+        out.push(s1);
+        return;
+    }
+    let len = x0.distance(x1);
+    let sigma = s0.sigma.max(s1.sigma);
+    let consistent = sigma.is_finite() && gap <= STRETCH_RATIO * sigma * len;
+    // Pieces between faces that share only a vertex, or none, are bisected until their ends
+    // share an edge (so that the way round a vertex is known) or MAX_DEPTH says the gap is
+    // open; at MAX_DEPTH a gap below the floor has converged (the image passes the vertex).
+    let rel = relation(ctx, &s0, &s1);
+    let done = match rel {
+        Relation::Same => consistent,
+        Relation::Edge => consistent && depth >= CROSS_DEPTH,
+        Relation::Vertex | Relation::Apart => false,
+    };
+    if rel == Relation::Edge && depth < MAX_DEPTH && depth >= floors.min_depth {
+        // Exact first: split where x0's solution path leaves its triangle through the shared
+        // edge. The image is continuous there when the primary at that point lies on the edge
+        // and x1's solution path *enters* its triangle there; if it left it instead, the two
+        // shells overlap before the crossing and the primary jumps (bisected below).
+        if let Some(sm) = split_at_crossing(ctx, x0, &s0, x1, &s1, normals, scratch, e) {
+            let xm = x0 + sm.0 * (x1 - x0);
+            refine(ctx, x0, s0, xm, sm.1, e, normals, depth + 1, floors, scratch, out, jump);
+            refine(ctx, xm, sm.1, x1, s1, e, normals, depth + 1, floors, scratch, out, jump);
+            return;
+        }
+    }
+    if done && depth >= floors.min_depth {
+        out.push(s1);
+        return;
+    }
+    if depth >= MAX_DEPTH {
+        if gap > floors.jump {
+            *jump = jump.max(gap);
+        }
+        out.push(s1);
+        return;
+    }
+    let mid = 0.5 * (x0 + x1);
+    MIDPOINTS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let Some(mm) = ctx.solve_point(mid, normals, s0.m.face, s1.m.face, scratch) else {
+        *jump = f64::INFINITY;
+        out.push(s1);
+        return;
+    };
+    let sm = make_sample(ctx, mm, e);
+    refine(ctx, x0, s0, mid, sm, e, normals, depth + 1, floors, scratch, out, jump);
+    refine(ctx, mid, sm, x1, s1, e, normals, depth + 1, floors, scratch, out, jump);
+}
+
+/// The crossing of a piece between edge-adjacent triangles, when it proves the image continuous
+/// there: (t, sample at the crossing).
+#[allow(clippy::too_many_arguments)]
+fn split_at_crossing<C: MapContext>(
+    ctx: &C,
+    x0: DVec3,
+    s0: &Sample,
+    x1: DVec3,
+    s1: &Sample,
+    normals: &[DVec3],
+    scratch: &mut Scratch,
+    e: DVec3,
+) -> Option<(f64, Sample)> {
+    let (t1, t2) = (ctx.face_info(s0.m.face), ctx.face_info(s1.m.face));
+    let k1 = (0..3).find(|&k| !t2.verts.contains(&t1.verts[k]))?;
+    let k2 = (0..3).find(|&k| !t1.verts.contains(&t2.verts[k]))?;
+    let t = edge_crossing(&t1, s0.m, k1, x0, x1, ctx.mode(), ctx.dmax())?;
+    if !(t > CROSSING_TOL && t < 1.0 - CROSSING_TOL) {
+        return None;
+    }
+    let xm = x0 + t * (x1 - x0);
+    MIDPOINTS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let mm = ctx.solve_point(xm, normals, s0.m.face, s1.m.face, scratch)?;
+    let sm = make_sample(ctx, mm, e);
+    // The primary there lies on the shared edge (on both triangles)...
+    let on2 = on_face(&sm.verts, &sm.m.bary, &t2.verts)?;
+    on_face(&sm.verts, &sm.m.bary, &t1.verts)?;
+    // ...and x1's triangle is entered, not left, at the crossing.
+    let m2 = Map { face: s1.m.face, bary: on2, d: mm.d };
+    let rate2 = bary_rates(&t2, &m2, ctx.mode(), x1 - x0)?[k2];
+    if !(rate2 > 0.0) {
+        return None;
+    }
+    Some((t, sm))
+}
+
+/// Which chart decided a dense triangle's orientation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Chart {
+    /// Every sample on one base triangle: its barycentric plane (the chord test is exact here).
+    Triangle,
+    /// The 1-ring of a base vertex unfolded around it.
+    Star,
+    /// A chain of base triangles unfolded along the loop.
+    Chain,
+}
+
+/// Whether a closed polygon is simple with positive signed area. Consecutive duplicates are
+/// merged first.
+pub fn polygon_positive(pts: &[DVec2]) -> bool {
+    let scale = pts.iter().fold(0.0f64, |m, p| m.max(p.x.abs()).max(p.y.abs())).max(f64::MIN_POSITIVE);
+    let tol = 1e-13 * scale;
+    let mut q: Vec<DVec2> = Vec::with_capacity(pts.len());
+    for &p in pts {
+        if q.last().is_none_or(|l: &DVec2| l.distance(p) > tol) {
+            q.push(p);
+        }
+    }
+    while q.len() > 1 && q[0].distance(*q.last().unwrap()) <= tol {
+        q.pop();
+    }
+    let n = q.len();
+    if n < 3 {
+        return false;
+    }
+    let mut area2 = 0.0;
+    for i in 0..n {
+        let (a, b) = (q[i], q[(i + 1) % n]);
+        area2 += a.perp_dot(b);
+    }
+    if area2 <= 0.0 {
+        return false;
+    }
+    if n == 3 {
+        return true;
+    }
+    let orient = |a: DVec2, b: DVec2, c: DVec2| (b - a).perp_dot(c - a);
+    for i in 0..n {
+        let (a, b) = (q[i], q[(i + 1) % n]);
+        for j in i + 2..n {
+            if i == 0 && j == n - 1 {
+                continue; // adjacent through the closing segment
+            }
+            let (c, d) = (q[j], q[(j + 1) % n]);
+            let (o1, o2) = (orient(a, b, c), orient(a, b, d));
+            let (o3, o4) = (orient(c, d, a), orient(c, d, b));
+            if o1 * o2 < 0.0 && o3 * o4 < 0.0 {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// Whether the image loop `lp` (samples in order, the first not repeated at the end) is a simple
+/// loop of positive signed area in an intrinsic chart of the base, and which chart decided it.
+/// `None`: no chart holds the loop (its consecutive samples' faces neither share an edge nor lie
+/// in one star); the caller decides.
+pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample]) -> Option<(bool, Chart)> {
+    let mut faces: Vec<u32> = lp.iter().map(|s| s.m.face).collect();
+    faces.sort_unstable();
+    faces.dedup();
+    // One triangle: its barycentric plane.
+    for &f in &faces {
+        let t = ctx.face_info(f).verts;
+        let pts: Option<Vec<DVec2>> =
+            lp.iter().map(|s| on_face(&s.verts, &s.m.bary, &t).map(|b| DVec2::new(b[1], b[2]))).collect();
+        if let Some(pts) = pts {
+            return Some((polygon_positive(&pts), Chart::Triangle));
+        }
+    }
+    // The star of a base vertex holding every sample; of several, the one nearest the loop's
+    // centroid (a geometric choice, independent of the base mesh's numbering).
+    let centroid = lp.iter().map(|s| s.p).sum::<DVec3>() / lp.len() as f64;
+    let mut cands: Vec<u32> = faces.iter().flat_map(|&f| ctx.face_info(f).verts).collect();
+    cands.sort_unstable();
+    cands.dedup();
+    let mut best: Option<(f64, u32, DVec3)> = None;
+    for w in cands {
+        if lp.iter().all(|s| star_face(ctx, s, w).is_some()) {
+            let pw = vertex_position(ctx, w, lp);
+            let dist = pw.distance(centroid);
+            if best.is_none_or(|b| dist < b.0) {
+                best = Some((dist, w, pw));
+            }
+        }
+    }
+    if let Some((_, w, _)) = best {
+        if let Some(pts) = star_chart(ctx, w, lp) {
+                return Some((polygon_positive(&pts), Chart::Star));
+        }
+    }
+    chain_chart(ctx, lp).map(|pts| (polygon_positive(&pts), Chart::Chain))
+}
+
+/// A face around `w` on which sample `s` lies, with its barycentrics there.
+fn star_face<C: MapContext>(ctx: &C, s: &Sample, w: u32) -> Option<(u32, [f64; 3])> {
+    if s.verts.contains(&w) {
+        return Some((s.m.face, s.m.bary));
+    }
+    let (sup, n) = support(&s.verts, &s.m.bary);
+    if n == 3 {
+        return None;
+    }
+    let mut q = [0u32; 3];
+    q[..n].copy_from_slice(&sup[..n]);
+    q[n] = w;
+    let f = ctx.face_containing(&q[..n + 1])?;
+    let t = ctx.face_info(f).verts;
+    on_face(&s.verts, &s.m.bary, &t).map(|b| (f, b))
+}
+
+fn vertex_position<C: MapContext>(ctx: &C, w: u32, lp: &[Sample]) -> DVec3 {
+    for s in lp {
+        if let Some((f, _)) = star_face(ctx, s, w) {
+            let info = ctx.face_info(f);
+            if let Some(k) = info.verts.iter().position(|&v| v == w) {
+                return info.pos[k];
+            }
+        }
+    }
+    DVec3::ZERO
+}
+
+/// The faces around base vertex `w` in fan order (each next face shares the edge (w, b) of the
+/// previous face (w, a, b) in winding order), and whether the fan closes. An open fan starts
+/// after its boundary. `None` around a non-manifold vertex.
+fn ordered_fan<C: MapContext>(ctx: &C, w: u32) -> Option<(Vec<u32>, bool)> {
+    let mut fan = Vec::new();
+    ctx.faces_around(w, &mut fan);
+    if fan.is_empty() {
+        return None;
+    }
+    let ab: Vec<(u32, u32)> = fan
+        .iter()
+        .map(|&f| {
+            let t = ctx.face_info(f).verts;
+            let k = t.iter().position(|&v| v == w).unwrap_or(0);
+            (t[(k + 1) % 3], t[(k + 2) % 3])
+        })
+        .collect();
+    // Start after a boundary (an `a` that is no face's `b`); a closed fan starts at its lowest
+    // `a` id (any start gives the same charts up to a rotation).
+    let first = (0..fan.len()).find(|&i| !ab.iter().any(|x| x.1 == ab[i].0));
+    let closed = first.is_none();
+    let start = first.unwrap_or_else(|| (0..fan.len()).min_by_key(|&i| ab[i].0).unwrap_or(0));
+    let mut order = vec![start];
+    let mut used = vec![false; fan.len()];
+    used[start] = true;
+    while order.len() < fan.len() {
+        let last = ab[*order.last().unwrap()].1;
+        let j = (0..fan.len()).find(|&j| !used[j] && ab[j].0 == last)?;
+        used[j] = true;
+        order.push(j);
+    }
+    Some((order.into_iter().map(|i| fan[i]).collect(), closed))
+}
+
+/// The loop in the polar chart of vertex `w`: a point at distance r from w, at angle θ from the
+/// fan's first edge (angles summed face by face around w), goes to r·(cos cθ, sin cθ), with
+/// c = 2π / (angle sum) around an interior vertex (continuous all the way round) and
+/// c = min(1, 1.5π / angle sum) at a boundary vertex. The map is one-to-one and
+/// orientation-preserving on the star, so a loop in it is simple and positive exactly when it
+/// is so on L.
+fn star_chart<C: MapContext>(ctx: &C, w: u32, lp: &[Sample]) -> Option<Vec<DVec2>> {
+    let (fan, closed) = ordered_fan(ctx, w)?;
+    struct Wedge {
+        face: u32,
+        pw: DVec3,
+        e1: DVec3,
+        n: DVec3,
+        angle: f64,
+        start: f64,
+    }
+    let mut wedges: Vec<Wedge> = Vec::with_capacity(fan.len());
+    for &f in &fan {
+        let info = ctx.face_info(f);
+        let k = info.verts.iter().position(|&v| v == w)?;
+        let (pw, pa, pb) = (info.pos[k], info.pos[(k + 1) % 3], info.pos[(k + 2) % 3]);
+        let (ua, ub) = (pa - pw, pb - pw);
+        let n = geometry::face_normal(info.pos[0], info.pos[1], info.pos[2]);
+        let angle = ua.cross(ub).length().atan2(ua.dot(ub));
+        wedges.push(Wedge { face: f, pw, e1: ua.normalize_or_zero(), n, angle, start: 0.0 });
+    }
+    let order: Vec<usize> = (0..wedges.len()).collect();
+    let mut total = 0.0;
+    for &i in &order {
+        wedges[i].start = total;
+        total += wedges[i].angle;
+    }
+    if !(total > 0.0) {
+        return None;
+    }
+    // Polar coordinates (r, θ) of every sample, θ summed face by face from the fan's start.
+    let mut polar: Vec<(f64, f64)> = Vec::with_capacity(lp.len());
+    for s in lp {
+        let (f, bary) = star_face(ctx, s, w)?;
+        let wg = wedges.iter().find(|x| x.face == f)?;
+        let info = ctx.face_info(f);
+        let r = interpolate_direction(&info.pos, &bary) - wg.pw;
+        let rl = r.length();
+        let phi = if rl == 0.0 { 0.0 } else { wg.e1.cross(r).dot(wg.n).atan2(wg.e1.dot(r)).clamp(0.0, wg.angle) };
+        polar.push((rl, wg.start + phi));
+    }
+    // A loop around w needs the whole fan, scaled to 2π so that it closes: c = 2π / Θ. A loop
+    // that does not wind around w is laid out isometrically (c = 1: each face a rigid motion,
+    // so chords stay chords) with the fan cut in the middle of the widest angle it never visits.
+    let tau = std::f64::consts::TAU;
+    let (mut c, mut seam) = (1.0, 0.0);
+    if closed {
+        let mut winding = 0.0;
+        for k in 0..polar.len() {
+            let (a, b) = (polar[k].1, polar[(k + 1) % polar.len()].1);
+            let mut dt = b - a;
+            if dt > total / 2.0 {
+                dt -= total;
+            } else if dt < -total / 2.0 {
+                dt += total;
+            }
+            winding += dt;
+        }
+        if winding.abs() > total / 2.0 {
+            c = tau / total;
+        } else {
+            let mut th: Vec<f64> = polar.iter().map(|p| p.1).collect();
+            th.sort_by(f64::total_cmp);
+            let (mut gap, mut at) = (th[0] + total - th[th.len() - 1], th[th.len() - 1]);
+            for k in 1..th.len() {
+                if th[k] - th[k - 1] > gap {
+                    gap = th[k] - th[k - 1];
+                    at = th[k - 1];
+                }
+            }
+            seam = at + gap / 2.0;
+        }
+    } else if total >= tau {
+        c = 1.5 * std::f64::consts::PI / total;
+    }
+    let pts = polar
+        .iter()
+        .map(|&(rl, t)| {
+            let t = if seam > 0.0 { (t - seam).rem_euclid(total) } else { t };
+            let th = c * t;
+            DVec2::new(rl * th.cos(), rl * th.sin())
+        })
+        .collect();
+    Some(pts)
+}
+
+/// The loop in a chain of base triangles unfolded isometrically along it: the first sample's
+/// triangle is laid out in its plane; each next triangle that shares an edge with one already
+/// laid out is unfolded about that edge. `None` when a step shares no edge.
+fn chain_chart<C: MapContext>(ctx: &C, lp: &[Sample]) -> Option<Vec<DVec2>> {
+    let mut laid: Vec<([u32; 3], [DVec2; 3])> = Vec::new();
+    let first = ctx.face_info(lp[0].m.face);
+    let (p0, p1, p2) = (first.pos[0], first.pos[1], first.pos[2]);
+    let ex = (p1 - p0).normalize_or_zero();
+    let n = geometry::face_normal(p0, p1, p2);
+    let ey = n.cross(ex);
+    let flat = |p: DVec3| DVec2::new((p - p0).dot(ex), (p - p0).dot(ey));
+    laid.push((first.verts, [flat(p0), flat(p1), flat(p2)]));
+    let mut pts = Vec::with_capacity(lp.len());
+    for s in lp {
+        let here = laid.iter().rev().find_map(|(t, q)| on_face(&s.verts, &s.m.bary, t).map(|b| (*q, b)));
+        let (q, b) = match here {
+            Some(x) => x,
+            None => {
+                let info = ctx.face_info(s.m.face);
+                if unfold_onto(&laid, &info).is_none() {
+                    unfold_around(ctx, &mut laid, &info)?;
+                }
+                let q = unfold_onto(&laid, &info)?;
+                laid.push((info.verts, q));
+                (q, s.m.bary)
+            }
+        };
+        pts.push(q[0] * b[0] + q[1] * b[1] + q[2] * b[2]);
+    }
+    Some(pts)
+}
+
+/// Lays out the faces between the last laid-out face sharing a vertex w with `target` and
+/// `target` itself, around w (the shorter way round; an open fan only the way it allows), so
+/// that `target` then shares an edge with a laid-out face.
+fn unfold_around<C: MapContext>(ctx: &C, laid: &mut Vec<([u32; 3], [DVec2; 3])>, target: &FaceInfo) -> Option<()> {
+    let (gi, w) = laid.iter().enumerate().rev().find_map(|(i, (t, _))| t.iter().find(|v| target.verts.contains(v)).map(|&w| (i, w)))?;
+    let (fan, closed) = ordered_fan(ctx, w)?;
+    let gverts = laid[gi].0;
+    let ig = fan.iter().position(|&f| ctx.face_info(f).verts == gverts)?;
+    let it = fan.iter().position(|&f| ctx.face_info(f).verts == target.verts)?;
+    let n = fan.len();
+    let fwd = (it + n - ig) % n;
+    let back = (ig + n - it) % n;
+    let forward = if closed { fwd <= back } else { it > ig };
+    let steps = if forward { fwd } else { back };
+    for k in 1..steps {
+        let idx = if forward { (ig + k) % n } else { (ig + n - k) % n };
+        let info = ctx.face_info(fan[idx]);
+        let q = unfold_onto(laid, &info)?;
+        laid.push((info.verts, q));
+    }
+    Some(())
+}
+
+/// Lays out triangle `info` in the plane next to a laid-out triangle sharing one of its edges,
+/// on the far side of that edge.
+fn unfold_onto(laid: &[([u32; 3], [DVec2; 3])], info: &FaceInfo) -> Option<[DVec2; 3]> {
+    for (t, q) in laid.iter().rev() {
+        for k in 0..3 {
+            let (i, j) = (info.verts[k], info.verts[(k + 1) % 3]);
+            let (Some(ti), Some(tj)) = (t.iter().position(|&v| v == i), t.iter().position(|&v| v == j)) else {
+                continue;
+            };
+            let o = (k + 2) % 3;
+            let (a, b) = (q[ti], q[tj]);
+            let (pa, pb, po) = (info.pos[k], info.pos[(k + 1) % 3], info.pos[o]);
+            let l = pa.distance(pb);
+            if l == 0.0 {
+                return None;
+            }
+            let ux = (pb - pa) / l;
+            let along = (po - pa).dot(ux);
+            let across = (po - pa - ux * along).length();
+            let dir = (b - a) / (b - a).length();
+            // The new triangle's winding (i → j → o) is counter-clockwise, so o lies to the
+            // left of i → j.
+            let left = DVec2::new(-dir.y, dir.x);
+            let mut out = [DVec2::ZERO; 3];
+            out[k] = a;
+            out[(k + 1) % 3] = b;
+            out[o] = a + dir * along + left * across;
+            return Some(out);
+        }
+    }
+    None
+}
+
+/// Counts of one check (SPEC §1: every check reports its jump edges and largest jump).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct CheckStats {
+    /// Dense edges whose image jumps (each counted once).
+    pub jump_edges: u64,
+    /// The largest jump, in the scan's units (∞ never: a point with no solution is counted in
+    /// `gap_edges` instead).
+    pub max_jump: f64,
+    /// Dense edges with a point that has no solution.
+    pub gap_edges: u64,
+    /// Dense triangles whose image loop leaves one base triangle (decided by a star or chain
+    /// chart).
+    pub straddling: u64,
+    /// Of those, decided by a chain of unfolded triangles.
+    pub chain_charts: u64,
+    /// Dense triangles no chart could hold (judged flipped).
+    pub no_chart: u64,
+    /// Dense triangles on which the first release's chord rule gives the other verdict
+    /// (counted only when asked for).
+    pub chord_differs: u64,
+}
+
+impl CheckStats {
+    pub fn add(&mut self, o: &CheckStats) {
+        self.jump_edges += o.jump_edges;
+        self.max_jump = self.max_jump.max(o.max_jump);
+        self.gap_edges += o.gap_edges;
+        self.straddling += o.straddling;
+        self.chain_charts += o.chain_charts;
+        self.no_chart += o.no_chart;
+        self.chord_differs += o.chord_differs;
+    }
+}
+
+/// The verdict on one dense triangle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FaceCheck {
+    Fine,
+    Flipped,
+    Torn,
+    /// A vertex is pinched or unmapped: the triangle cannot be drawn (its vertex is counted).
+    Skipped,
+}
+
+/// Samples of a loop closer than this fraction of the dense triangle's longest edge to a base
+/// vertex are taken to lie on it.
+/// Why: a scan vertex that is a base vertex up to file precision (1e-6 relative) maps a few
+/// nanometres off it, and which faces around the vertex such a point falls on is noise; at
+/// 1e-4 of an edge the signed area moves by at most ~1e-4 of the triangle's.
+pub const SNAP_REL: f64 = 1e-4;
+
+/// Moves the samples within `radius` of a vertex of their base face onto that vertex.
+fn snap_to_vertices<C: MapContext>(ctx: &C, lp: &mut [Sample], radius: f64) {
+    for s in lp.iter_mut() {
+        let info = ctx.face_info(s.m.face);
+        for k in 0..3 {
+            if s.m.bary[k] < 1.0 && info.pos[k].distance(s.p) <= radius {
+                let mut b = [0.0; 3];
+                b[k] = 1.0;
+                s.m.bary = b;
+                s.p = info.pos[k];
+                break;
+            }
+        }
+    }
+}
+
+/// Depths to which every edge of a dense triangle is refined when its loop first looks flipped.
+/// Why: 8 and 64 pieces per edge; a spike of the image at a base vertex is resolved by 8 in the
+/// cases measured, and a true flip does not change sign under refinement.
+pub const REFINE_DEPTHS: [u32; 2] = [3, 6];
+
+/// The image loop of dense triangle `fv` (maps `m`) into `sc.lp`, each edge walked from its
+/// lower vertex id with every piece bisected at least `min_depth` times. Counts jump edges once
+/// per edge (from the triangle where the edge runs a → b with a < b, or its only triangle) when
+/// `min_depth` is 0. Returns false when an edge's image jumps (the triangle is torn).
+fn face_loop<C: MapContext>(
+    ctx: &C,
+    dense: &DenseData,
+    fv: [u32; 3],
+    m: [Map; 3],
+    min_depth: u32,
+    sc: &mut CheckScratch,
+    stats: &mut CheckStats,
+) -> bool {
+    sc.lp.clear();
+    let mut torn = false;
+    for k in 0..3 {
+        let (a, b) = (fv[k], fv[(k + 1) % 3]);
+        let (ka, kb) = (k, (k + 1) % 3);
+        let (lo, hi, klo, khi) = if a < b { (a, b, ka, kb) } else { (b, a, kb, ka) };
+        let cached = if min_depth == 0 { sc.cache.as_ref().and_then(|c| c.get(&(lo, hi))) } else { None };
+        let jump = match cached {
+            Some((j, smp)) => {
+                sc.edge.clear();
+                sc.edge.extend_from_slice(smp);
+                *j
+            }
+            None => {
+                dense.edge_normals(lo, hi, &mut sc.normals);
+                sc.edge.clear();
+                let normals = std::mem::take(&mut sc.normals);
+                let j = edge_image(
+                    ctx,
+                    dense.pos[lo as usize],
+                    m[klo],
+                    dense.pos[hi as usize],
+                    m[khi],
+                    &normals,
+                    min_depth,
+                    &mut sc.solve,
+                    &mut sc.edge,
+                );
+                sc.normals = normals;
+                if min_depth == 0 {
+                    if let Some(c) = sc.cache.as_mut() {
+                        c.insert((lo, hi), (j, sc.edge.clone()));
+                    }
+                }
+                j
+            }
+        };
+        if jump > 0.0 {
+            torn = true;
+            let counted_here = a < b || dense.faces_of(a).iter().filter(|&&g| dense.faces[g as usize].contains(&b)).count() < 2;
+            if counted_here && min_depth == 0 && std::env::var("DISPDEC_DEBUG_JUMPS").is_ok() {
+                let (s0, s1) = (sc.edge[0], sc.edge[sc.edge.len() - 1]);
+                eprintln!("jump {jump:.3e} on dense edge ({lo}, {hi}): base faces {} -> {}, d {:.3e} -> {:.3e}", s0.m.face, s1.m.face, s0.m.d, s1.m.d);
+            }
+            if counted_here && min_depth == 0 {
+                if jump.is_finite() {
+                    stats.jump_edges += 1;
+                    stats.max_jump = stats.max_jump.max(jump);
+                } else {
+                    stats.gap_edges += 1;
+                }
+            }
+        }
+        if torn {
+            continue;
+        }
+        // The loop: this edge's samples from a towards b, without b (the next edge starts there).
+        let n = sc.edge.len();
+        if a < b {
+            sc.lp.extend_from_slice(&sc.edge[..n - 1]);
+        } else {
+            sc.lp.extend(sc.edge[1..].iter().rev());
+        }
+    }
+    !torn
+}
+
+/// Reusable buffers of [`check_face`].
+#[derive(Default)]
+pub struct CheckScratch {
+    pub solve: Scratch,
+    /// Edge images already walked in this check, by (lower, higher) dense vertex: (jump,
+    /// samples). Used by [`check_faces`], where neighbouring triangles share edges.
+    cache: Option<std::collections::HashMap<(u32, u32), (f64, Vec<Sample>)>>,
+    normals: Vec<DVec3>,
+    edge: Vec<Sample>,
+    lp: Vec<Sample>,
+}
+
+/// Checks dense triangle `f`: continuity of its three edges, then the orientation of its image
+/// loop. Edges are walked from their lower vertex id, so that both triangles of an edge see the
+/// same samples. A jump edge is counted in `stats` from one of its two triangles only.
+pub fn check_face<C: MapContext>(
+    ctx: &C,
+    dense: &DenseData,
+    f: u32,
+    compare_chords: bool,
+    sc: &mut CheckScratch,
+    stats: &mut CheckStats,
+) -> FaceCheck {
+    let fv = dense.faces[f as usize];
+    let maps = [ctx.map_of(fv[0]), ctx.map_of(fv[1]), ctx.map_of(fv[2])];
+    let [Some(m0), Some(m1), Some(m2)] = maps else {
+        return FaceCheck::Skipped;
+    };
+    let m = [m0, m1, m2];
+    if !face_loop(ctx, dense, fv, m, 0, sc, stats) {
+        return FaceCheck::Torn;
+    }
+    let snap = SNAP_REL * (0..3).map(|k| dense.pos[fv[k] as usize].distance(dense.pos[fv[(k + 1) % 3] as usize])).fold(0.0, f64::max);
+    snap_to_vertices(ctx, &mut sc.lp, snap);
+    let mut verdict = loop_positive(ctx, &sc.lp);
+    // A negative verdict is confirmed on finer loops: chords between coarse samples can cross a
+    // finely sampled neighbouring edge where the image is a thin spike; a true flip stays.
+    for &depth in &REFINE_DEPTHS {
+        if verdict.is_some_and(|v| v.0) {
+            break;
+        }
+        if !face_loop(ctx, dense, fv, m, depth, sc, stats) {
+            return FaceCheck::Torn;
+        }
+        snap_to_vertices(ctx, &mut sc.lp, snap);
+        verdict = loop_positive(ctx, &sc.lp);
+    }
+    if std::env::var("DISPDEC_DEBUG_FACE").ok().and_then(|v| v.parse::<u32>().ok()) == Some(f) {
+        eprintln!("face {f}: verdict {verdict:?}");
+        for s in &sc.lp {
+            eprintln!("  face {} verts {:?} bary {:?} d {:.3e} p {:?} sigma {:.3}", s.m.face, s.verts, s.m.bary, s.m.d, s.p, s.sigma);
+        }
+    }
+    let positive = match verdict {
+        Some((pos, chart)) => {
+            if chart != Chart::Triangle {
+                stats.straddling += 1;
+            }
+            if chart == Chart::Chain {
+                stats.chain_charts += 1;
+            }
+            pos
+        }
+        None => {
+            stats.straddling += 1;
+            stats.no_chart += 1;
+            false
+        }
+    };
+    if compare_chords && verdict.is_some_and(|v| v.1 != Chart::Triangle) && super::chord::chord_positive(ctx, m) != positive {
+        stats.chord_differs += 1;
+    }
+    if positive {
+        FaceCheck::Fine
+    } else {
+        FaceCheck::Flipped
+    }
+}
+
+/// The decimator's form of the check: the dense triangles `faces` in order (orientation and
+/// continuity), then the dense `edges` (continuity only), stopping at the first failure.
+pub fn check_faces<C: MapContext>(
+    ctx: &C,
+    dense: &DenseData,
+    faces: &[u32],
+    edges: &[(u32, u32)],
+    sc: &mut CheckScratch,
+    stats: &mut CheckStats,
+) -> Result<(), super::primary::Reject> {
+    sc.cache.get_or_insert_with(Default::default).clear();
+    for &f in faces {
+        match check_face(ctx, dense, f, false, sc, stats) {
+            FaceCheck::Torn => return Err(super::primary::Reject::Tear),
+            FaceCheck::Flipped => return Err(super::primary::Reject::Flip),
+            FaceCheck::Fine | FaceCheck::Skipped => {}
+        }
+    }
+    for &(a, b) in edges {
+        let (Some(ma), Some(mb)) = (ctx.map_of(a), ctx.map_of(b)) else { continue };
+        dense.edge_normals(a, b, &mut sc.normals);
+        sc.edge.clear();
+        let normals = std::mem::take(&mut sc.normals);
+        let jump = edge_image(ctx, dense.pos[a as usize], ma, dense.pos[b as usize], mb, &normals, 0, &mut sc.solve, &mut sc.edge);
+        sc.normals = normals;
+        if jump > 0.0 {
+            return Err(super::primary::Reject::Tear);
+        }
+    }
+    Ok(())
+}

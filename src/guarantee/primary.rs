@@ -1,0 +1,331 @@
+//! The primary search of SPEC §1: the solutions of a dense point over a set of base triangles,
+//! condition (4), and the smallest |d|. One function shared by the decimator's local test, its
+//! re-check, the validator and the GPU's f64 settling.
+
+use crate::geometry::{
+    self, condition4, interpolate_direction, solve_constant, solve_shell, sphere_lower_bound, triangle_distance,
+    triangle_sphere,
+    ShellHit,
+};
+use glam::DVec3;
+
+/// Two solutions closer than this (relative to dmax) are the same point found by two
+/// triangles that share an edge or a vertex.
+/// Why: barycentric tolerance BARY_EPS puts shared-edge duplicates within ~1e-9 of each other.
+pub const SAME_SOLUTION_REL: f64 = 1e-7;
+
+/// The directions used on the base mesh.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NormalMode {
+    /// `N(X) = a·N1 + b·N2 + c·N3` (the paper's interpolated normals).
+    Interpolated,
+    /// The face normal, constant per base face (paper §4).
+    Constant,
+}
+
+/// Where a dense point maps on the base mesh.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Map {
+    pub face: u32,
+    pub bary: [f64; 3],
+    pub d: f64,
+}
+
+/// Why a candidate collapse was rejected.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Reject {
+    /// The link condition fails (the collapse would break the manifold).
+    Link,
+    /// A boundary rule: an interior edge between two boundary vertices, or a boundary loop
+    /// that would shrink below a triangle.
+    Boundary,
+    /// The edge's valence is not below the cap.
+    Valence,
+    /// A triangle of the collapsed fan flips or degenerates, or a vertex direction cannot see
+    /// all of its faces.
+    Foldover,
+    /// A dense vertex has no solution satisfying condition (4) on the neighbourhood.
+    Unmapped,
+    /// A dense triangle's image is flipped.
+    Flip,
+    /// A dense edge's image is not continuous.
+    Tear,
+    /// (`--strict`) A dense vertex has more than one solution satisfying (4).
+    Ambiguous,
+}
+
+impl Reject {
+    pub fn name(self) -> &'static str {
+        match self {
+            Reject::Link => "link",
+            Reject::Boundary => "boundary",
+            Reject::Valence => "valence",
+            Reject::Foldover => "foldover",
+            Reject::Unmapped => "unmapped",
+            Reject::Flip => "flip",
+            Reject::Tear => "tear",
+            Reject::Ambiguous => "ambiguous",
+        }
+    }
+}
+
+/// The triangles of a neighbourhood in flat arrays (the layout a GPU batch uses too).
+#[derive(Clone, Debug, Default)]
+pub struct Tris {
+    pub ids: Vec<u32>,
+    pub verts: Vec<[u32; 3]>,
+    pub pos: Vec<[DVec3; 3]>,
+    pub dir: Vec<[DVec3; 3]>,
+    pub sphere: Vec<(DVec3, f64)>,
+    /// Per triangle (unit normal n, max |Ni·n|, max |Ni − (Ni·n)n|): the shell bound of
+    /// [`shell_lower_bound`].
+    pub slope: Vec<(DVec3, f64, f64)>,
+    /// (face id, index) sorted by id, for lookups; rebuilt by [`Tris::finish`].
+    lookup: Vec<(u32, u32)>,
+}
+
+impl Tris {
+    /// Builds the id lookup; call after the last push.
+    pub fn finish(&mut self) {
+        self.lookup.clear();
+        self.lookup.extend(self.ids.iter().enumerate().map(|(i, &f)| (f, i as u32)));
+        self.lookup.sort_unstable();
+    }
+    pub fn clear(&mut self) {
+        self.ids.clear();
+        self.verts.clear();
+        self.pos.clear();
+        self.dir.clear();
+        self.sphere.clear();
+        self.slope.clear();
+        self.lookup.clear();
+    }
+    pub fn push(&mut self, id: u32, verts: [u32; 3], pos: [DVec3; 3], dir: [DVec3; 3]) {
+        self.ids.push(id);
+        self.verts.push(verts);
+        self.sphere.push(triangle_sphere(&pos));
+        let n = geometry::face_normal(pos[0], pos[1], pos[2]);
+        let nu = dir.iter().map(|d| d.dot(n).abs()).fold(0.0, f64::max);
+        let tau = dir.iter().map(|d| (*d - n * d.dot(n)).length()).fold(0.0, f64::max);
+        self.slope.push((n, nu, tau));
+        self.pos.push(pos);
+        self.dir.push(dir);
+    }
+    pub fn len(&self) -> usize {
+        self.ids.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.ids.is_empty()
+    }
+    /// Index of base face `face` in these triangles (after [`Tris::finish`]).
+    pub fn index_of(&self, face: u32) -> Option<usize> {
+        if self.lookup.len() != self.ids.len() {
+            return self.ids.iter().position(|&f| f == face);
+        }
+        self.lookup.binary_search_by_key(&face, |e| e.0).ok().map(|i| self.lookup[i].1 as usize)
+    }
+}
+
+/// The outcome of searching one dense point over a neighbourhood.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Found {
+    /// The primary solution: triangle index in the neighbourhood and the hit.
+    Hit(usize, ShellHit),
+    /// No solution with |d| ≤ dmax satisfying condition (4).
+    None,
+    /// (strict) more than one distinct solution satisfying condition (4).
+    Ambiguous,
+}
+
+/// A lower bound on |d| of any solution of `x` on triangle `t`: with X on the triangle and
+/// x − X = d·N(X), N(X) a convex combination of the Ni, the height h of x over the triangle's
+/// plane is at most |d|·max|Ni·n| and the distance r of its foot to the triangle at most
+/// |d|·max|Ni,tangential| (constant mode: N = n, so r must vanish). Far tighter than the
+/// distance to the triangle where the directions are close to the normal.
+#[inline]
+pub fn shell_lower_bound(x: DVec3, tris: &Tris, t: usize, mode: NormalMode) -> f64 {
+    let dist = triangle_distance(x, &tris.pos[t]);
+    let (n, nu, tau) = match mode {
+        NormalMode::Interpolated => tris.slope[t],
+        NormalMode::Constant => (tris.slope[t].0, 1.0, 0.0),
+    };
+    let h = (x - tris.pos[t][0]).dot(n).abs().min(dist);
+    let r = (dist * dist - h * h).max(0.0).sqrt();
+    // Slack for rounding: BARY_EPS lets X sit that far outside the triangle.
+    let size = tris.sphere[t].1;
+    let r = (r - 1e-6 * size).max(0.0);
+    let by_h = if h == 0.0 { 0.0 } else if nu > 0.0 { h / nu } else { f64::INFINITY };
+    let by_r = if r == 0.0 { 0.0 } else if tau > 0.0 { r / tau } else { f64::INFINITY };
+    dist.max(by_h.min(f64::MAX)).max(by_r) * (1.0 - 1e-9)
+}
+
+/// Solves one triangle of the neighbourhood in the given mode.
+#[inline]
+pub fn solve_tri(x: DVec3, tris: &Tris, t: usize, mode: NormalMode, dmax: f64) -> geometry::Hits {
+    match mode {
+        NormalMode::Interpolated => solve_shell(x, &tris.pos[t], &tris.dir[t], dmax),
+        NormalMode::Constant => solve_constant(x, &tris.pos[t], dmax),
+    }
+}
+
+/// The direction at a hit: interpolated, or the face normal in constant mode.
+#[inline]
+pub fn direction_at(tris: &Tris, t: usize, hit: &ShellHit, mode: NormalMode) -> DVec3 {
+    match mode {
+        NormalMode::Interpolated => interpolate_direction(&tris.dir[t], &hit.bary),
+        NormalMode::Constant => {
+            let p = &tris.pos[t];
+            geometry::face_normal(p[0], p[1], p[2])
+        }
+    }
+}
+
+/// Reusable per-thread scratch space.
+#[derive(Default)]
+pub struct Scratch {
+    bounds: Vec<f64>,
+    found: Vec<DVec3>,
+}
+
+/// The primary solution of `x` over `tris` (SPEC §1): among solutions with |d| ≤ dmax that
+/// satisfy condition (4) for `normals`, the one with the smallest |d|. Triangles are visited in
+/// the order of a lower bound on |d| and the search stops as soon as no triangle can beat the
+/// best hit. With `check4 == false` (pinched vertices) condition (4) is not applied. With
+/// `strict`, every triangle within dmax is visited and distinct solutions are counted.
+#[allow(clippy::too_many_arguments)]
+pub fn find_primary(
+    x: DVec3,
+    normals: &[DVec3],
+    tris: &Tris,
+    mode: NormalMode,
+    dmax: f64,
+    check4: bool,
+    strict: bool,
+    scratch: &mut Scratch,
+) -> Found {
+    find_primary_hinted(x, normals, tris, mode, dmax, check4, strict, &[], scratch)
+}
+
+/// [`find_primary`], visiting the triangles `hint` first (a bisection midpoint's ends' faces):
+/// a good first hit culls the rest by their bounds. The answer is the same with any hint.
+#[allow(clippy::too_many_arguments)]
+pub fn find_primary_hinted(
+    x: DVec3,
+    normals: &[DVec3],
+    tris: &Tris,
+    mode: NormalMode,
+    dmax: f64,
+    check4: bool,
+    strict: bool,
+    hint: &[usize],
+    scratch: &mut Scratch,
+) -> Found {
+    let m = tris.len();
+    scratch.bounds.clear();
+    scratch.bounds.extend((0..m).map(|t| sphere_lower_bound(x, tris.sphere[t].0, tris.sphere[t].1)));
+    scratch.found.clear();
+    let mut best: Option<(usize, ShellHit)> = None;
+    let mut hints = hint.iter().copied().filter(|&t| t < m);
+    loop {
+        // The hints first, then the unvisited triangle with the smallest bound (ties: lowest
+        // index). A hint out of reach is only marked visited.
+        let (ti, tb, hinted) = match hints.next() {
+            Some(t) => (t, scratch.bounds[t], true),
+            None => {
+                let mut ti = usize::MAX;
+                let mut tb = f64::INFINITY;
+                for (t, &b) in scratch.bounds.iter().enumerate() {
+                    if b < tb {
+                        tb = b;
+                        ti = t;
+                    }
+                }
+                (ti, tb, false)
+            }
+        };
+        if hinted && !tb.is_finite() {
+            continue; // a repeated hint
+        }
+        if ti == usize::MAX || (!hinted && tb > dmax) {
+            break;
+        }
+        if hinted && (tb > dmax || (!strict && best.is_some_and(|(_, h)| tb > h.d.abs() + SAME_SOLUTION_REL * dmax))) {
+            scratch.bounds[ti] = f64::INFINITY;
+            continue;
+        }
+        let tie = SAME_SOLUTION_REL * dmax;
+        if !strict {
+            if let Some((_, h)) = best {
+                if tb > h.d.abs() + tie {
+                    break;
+                }
+            }
+        }
+        scratch.bounds[ti] = f64::INFINITY;
+        let limit = match best {
+            Some((_, h)) if !strict => h.d.abs() + tie,
+            _ => dmax,
+        };
+        if shell_lower_bound(x, tris, ti, mode) > limit {
+            continue;
+        }
+        let hits = solve_tri(x, tris, ti, mode, dmax);
+        for h in hits.iter() {
+            if check4 && !condition4(direction_at(tris, ti, &h, mode), normals.iter().copied()) {
+                continue;
+            }
+            if strict {
+                let p = interpolate_direction(&tris.pos[ti], &h.bary);
+                if !scratch.found.iter().any(|q| q.distance(p) <= SAME_SOLUTION_REL * dmax) {
+                    scratch.found.push(p);
+                }
+            }
+            // Smallest |d|; a tie (the same point seen from faces sharing an edge or a vertex)
+            // goes to the lowest face id, so that every search picks the same face.
+            let better = match best {
+                None => true,
+                Some((bt, b)) => {
+                    let (da, db) = (h.d.abs(), b.d.abs());
+                    da < db - tie || (da <= db + tie && tris.ids[ti] < tris.ids[bt])
+                }
+            };
+            if better {
+                best = Some((ti, h));
+            }
+        }
+    }
+    if strict && scratch.found.len() > 1 {
+        return Found::Ambiguous;
+    }
+    match best {
+        Some((t, h)) => Found::Hit(t, h),
+        None => Found::None,
+    }
+}
+
+/// The best hit of `x` on triangle `t` alone, by the rule of [`find_primary`] (condition (4)
+/// when `check4`, smallest |d|, the first of equal ones): the f64 answer on the triangle the GPU
+/// chose.
+pub fn best_on_triangle(x: DVec3, normals: &[DVec3], tris: &Tris, t: usize, mode: NormalMode, dmax: f64, check4: bool) -> Option<ShellHit> {
+    let tie = SAME_SOLUTION_REL * dmax;
+    let mut best: Option<ShellHit> = None;
+    for h in solve_tri(x, tris, t, mode, dmax).iter() {
+        if check4 && !condition4(direction_at(tris, t, &h, mode), normals.iter().copied()) {
+            continue;
+        }
+        if best.is_none_or(|b| h.d.abs() < b.d.abs() - tie) {
+            best = Some(h);
+        }
+    }
+    best
+}
+
+/// Geometry of one base face as the checks see it.
+#[derive(Clone, Copy, Debug)]
+pub struct FaceInfo {
+    pub verts: [u32; 3],
+    pub pos: [DVec3; 3],
+    pub dir: [DVec3; 3],
+}
+
