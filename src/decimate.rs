@@ -204,21 +204,13 @@ impl State {
         };
         st.edge_reach_max = st.edge_reach.iter().copied().fold(0.0, f64::max);
         st.dir = (0..nv as u32).into_par_iter().map(|v| st.compute_dir(v)).collect();
-        st.unmapped_at_start = (0..nv as u32)
-            .into_par_iter()
-            .filter(|&v| {
-                let dd = &st.dense;
-                if dd.pinched[v as usize] {
-                    return false;
-                }
-                let ns: Vec<DVec3> = dd.faces_of(v).iter().map(|&f| dd.normal[f as usize]).collect();
-                let sees = |n: DVec3| ns.iter().all(|ni| n.dot(*ni) > 0.0);
-                match st.mode {
-                    NormalMode::Interpolated => !sees(st.dir[v as usize]),
-                    NormalMode::Constant => !ns.iter().any(|&n| sees(n)),
-                }
-            })
-            .count();
+        // Interpolated directions see every vertex of the scan (the direction rule); in
+        // constant mode some vertices see none of their own faces' normals: those are exempt,
+        // counted and listed like pinched vertices (SPEC §1).
+        st.unmapped_at_start = match st.mode {
+            NormalMode::Interpolated => 0,
+            NormalMode::Constant => st.dense.exempt_for_constant_mode(),
+        };
         for v in 0..nv as u32 {
             let f = st.dense.vf[st.dense.vf_start[v as usize] as usize];
             let k = st.dense.faces[f as usize].iter().position(|&x| x == v).unwrap();
@@ -677,4 +669,82 @@ pub struct BaseMesh {
     pub faces: Vec<[u32; 3]>,
     /// Internal face id → output face id (INVALID for deleted faces).
     pub face_map: Vec<u32>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eval::CpuEvaluator;
+
+    /// A bumpy n × n grid (a scan-like open disk).
+    fn grid_mesh(n: usize) -> DenseMesh {
+        let mut positions = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                let (x, y) = (i as f64 / n as f64, j as f64 / n as f64);
+                positions.push(DVec3::new(x, y, 0.05 * (6.0 * x).sin() * (5.0 * y).cos()));
+            }
+        }
+        let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+        let mut faces = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                faces.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                faces.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        let mesh = crate::mesh::Mesh { positions, faces, ..Default::default() };
+        crate::mesh::check_and_compact(std::path::Path::new("grid"), mesh).unwrap()
+    }
+
+    #[test]
+    fn a_candidate_that_read_a_face_an_earlier_commit_changed_is_deferred() {
+        // Two independent candidates of one round (their regions and rings share no vertex),
+        // both accepted against the state before the round:
+        //
+        //   ┌──┬──┬──┬──┬──┬──┐      A's region        B's region
+        //   │A │A │  │  │B │B │      ▓▓                ░░
+        //   └──┴──┴──┴──┴──┴──┘
+        //
+        // If B's test read a face of A's region (a far primary, a midpoint's search), A's
+        // commit makes B stale: B goes back to the queue untried. The same round without that
+        // read commits both.
+        let mesh = grid_mesh(24);
+        for inject in [false, true] {
+            let mut st = State::new(&mesh, &Options::default());
+            let mut marks = vec![0u32; st.pos.len()];
+            let batch = st.pick_collapses(16, &mut marks, 1);
+            assert!(batch.len() >= 2, "a round holds several candidates");
+            let mut outcomes = CpuEvaluator.evaluate(&st, &batch).unwrap();
+            let (ia, ib) = {
+                let ok: Vec<usize> = outcomes.iter().enumerate().filter(|(_, o)| o.is_ok()).map(|(i, _)| i).collect();
+                assert!(ok.len() >= 2, "two accepted candidates");
+                (ok[0], ok[1])
+            };
+            let a_region = batch[ia].region.clone();
+            assert!(
+                batch[ib].region.iter().all(|f| !a_region.contains(f)) && batch[ib].border.iter().all(|f| !a_region.contains(f)),
+                "independent by footprint"
+            );
+            if inject {
+                // B read one of A's region faces beyond its own neighbourhood.
+                outcomes[ib].as_mut().unwrap().read_faces.push(a_region[0]);
+            }
+            let accepted_before = st.stats.accepted;
+            let faces_before = st.face_count;
+            let mut vmark = vec![0u32; st.dense.pos.len()];
+            let mut fmark = vec![0u32; st.topo.num_faces_total()];
+            let n_ok = outcomes.iter().filter(|o| o.is_ok()).count() as u64;
+            st.commit_collapses(batch, outcomes, &mut vmark, &mut fmark, 1);
+            let committed = st.stats.accepted - accepted_before;
+            if inject {
+                assert_eq!(st.stats.deferred, 1, "B is deferred");
+                assert_eq!(committed, n_ok - 1, "everything but B commits");
+            } else {
+                assert_eq!(st.stats.deferred, 0);
+                assert_eq!(committed, n_ok);
+            }
+            assert!(st.face_count < faces_before);
+        }
+    }
 }

@@ -56,6 +56,8 @@ pub struct Verdict {
     pub first_torn: Vec<u32>,
     /// Judged by brute force (`--exhaustive`).
     pub exhaustive: bool,
+    /// (constant mode) Vertices exempt because no base can map them (counted in `pinched`).
+    pub exempt_constant: usize,
     /// Jump edges and the largest jump (SPEC §1), straddling triangles and their charts.
     pub checks: CheckStats,
 }
@@ -326,6 +328,17 @@ pub fn validate_on(
     gpu: Option<&dyn Project>,
 ) -> Result<(Verdict, Vec<Option<Map>>), crate::gpu::GpuError> {
     let (mode, dmax, strict) = (opts.mode, opts.dmax, opts.strict);
+    // Constant mode: the vertices no base can map (none of their own faces' normals sees all of
+    // their faces) are exempt like pinched ones.
+    let exempted;
+    let (dense, exempt_constant) = if mode == NormalMode::Constant {
+        let mut d = dense.clone();
+        let n = d.exempt_for_constant_mode();
+        exempted = d;
+        (&exempted, n)
+    } else {
+        (dense, 0)
+    };
     let second = opts.second || strict;
     let bvh = Bvh::build(&base.positions, &base.faces);
     let all_owned = opts.exhaustive.then(|| all_tris(base));
@@ -407,6 +420,7 @@ pub fn validate_on(
         first_torn: torn.into_iter().take(10).collect(),
         exhaustive: opts.exhaustive,
         checks,
+        exempt_constant,
     };
     let maps = maps.into_iter().enumerate().map(|(v, m)| if dense.pinched[v] { None } else { m }).collect();
     Ok((verdict, maps))

@@ -40,7 +40,7 @@ fn renders_meshes_side_by_side_on_vulkan() {
     let gpu = match dispdec::gpu::Gpu::new(wgpu::Backends::VULKAN) {
         Ok(g) => g,
         Err(e) if !require_gpu() => {
-            eprintln!("SKIPPED (set DISPDEC_REQUIRE_GPU=1 to make this a failure): {e}");
+            { use std::io::Write; let _ = writeln!(std::io::stderr(), "SKIPPED (set DISPDEC_REQUIRE_GPU=1 to make this a failure): {e}"); }
             return;
         }
         Err(e) => panic!("DISPDEC_REQUIRE_GPU=1 but no Vulkan adapter: {e}"),
@@ -82,7 +82,7 @@ fn render_command_writes_a_png() {
     let o = run(&["render", m.to_str().unwrap(), m.to_str().unwrap(), "-o", out.to_str().unwrap(), "--size", "64"]);
     let err = String::from_utf8_lossy(&o.stderr);
     if o.status.code() == Some(2) && err.contains("no GPU adapter") && !require_gpu() {
-        eprintln!("SKIPPED: {err}");
+        { use std::io::Write; let _ = writeln!(std::io::stderr(), "SKIPPED: {err}"); }
         return;
     }
     assert_eq!(o.status.code(), Some(0), "{err}");

@@ -26,7 +26,7 @@ fn vulkan() -> Option<Gpu> {
             Some(g)
         }
         Err(e) if !require_gpu() => {
-            eprintln!("SKIPPED (set DISPDEC_REQUIRE_GPU=1 to make this a failure): {e}");
+            { use std::io::Write; let _ = writeln!(std::io::stderr(), "SKIPPED (set DISPDEC_REQUIRE_GPU=1 to make this a failure): {e}"); }
             None
         }
         Err(e) => panic!("DISPDEC_REQUIRE_GPU=1 but no Vulkan adapter: {e}"),

@@ -1001,3 +1001,132 @@ pub fn check_faces<C: MapContext>(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    //! Known-answer tests on hand-made bases, judged through the validator (whole base, no
+    //! decimator state).
+    use super::*;
+    use crate::validate::{validate, Base, CheckOptions};
+    use glam::DVec3;
+
+    fn base(positions: Vec<DVec3>, directions: Vec<DVec3>, faces: Vec<[u32; 3]>) -> Base {
+        Base { positions, directions, faces }
+    }
+
+    /// A grid of n × n squares over [x0, x1] × [y0, y1] at height z(x), two triangles each,
+    /// wound counter-clockwise seen from +z.
+    fn grid(n: usize, x0: f64, x1: f64, y0: f64, y1: f64, z: impl Fn(f64) -> f64) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+        let mut p = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                let x = x0 + (x1 - x0) * i as f64 / n as f64;
+                let y = y0 + (y1 - y0) * j as f64 / n as f64;
+                p.push(DVec3::new(x, y, z(x)));
+            }
+        }
+        let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+        let mut f = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                f.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                f.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        (p, f)
+    }
+
+    /// The valley base: two triangles pairs meeting along the y axis, sides rising at 45°;
+    /// the crease vertices' directions are +z, the outer ones their faces' normals.
+    ///
+    /// ```text
+    ///   x = -1        x = 0        x = 1
+    ///     \            |            /      z = |x|
+    ///       \    T1    |    T2    /
+    ///         \        |        /
+    ///           \______|______/
+    /// ```
+    fn valley() -> Base {
+        let p = vec![
+            DVec3::new(-1.0, -1.0, 1.0),
+            DVec3::new(0.0, -1.0, 0.0),
+            DVec3::new(1.0, -1.0, 1.0),
+            DVec3::new(-1.0, 1.0, 1.0),
+            DVec3::new(0.0, 1.0, 0.0),
+            DVec3::new(1.0, 1.0, 1.0),
+        ];
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let (nl, nr) = (DVec3::new(s, 0.0, s), DVec3::new(-s, 0.0, s));
+        let dirs = vec![nl, DVec3::Z, nr, nl, DVec3::Z, nr];
+        base(p, dirs, vec![[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]])
+    }
+
+    #[test]
+    fn a_scan_on_the_base_carries_with_no_jumps() {
+        // The scan is the valley itself, finely triangulated: every point maps to itself.
+        let (p, f) = grid(8, -0.9, 0.9, -0.9, 0.9, |x| x.abs());
+        let dense = DenseData::new(&p, &f);
+        let v = validate(&dense, &valley(), &CheckOptions::new(NormalMode::Interpolated, 0.5));
+        assert!(v.valid, "{v:?}");
+        assert_eq!(v.checks.jump_edges, 0);
+        assert!(v.checks.straddling > 0, "triangles across the crease are judged in charts: {v:?}");
+    }
+
+    #[test]
+    fn overlapping_shells_make_the_projection_jump() {
+        // Constant normals over the valley: a flat scan at height 0.6 projects orthogonally
+        // onto both faces (their prisms overlap above a concave crease), and the smallest |d|
+        // switches from T1's foot to T2's across x = 0 — two points of L far apart: a jump,
+        // though T1 and T2 share an edge.
+        //
+        //     z = 0.6  ───●─────●─────●───  (scan)
+        //                  ↘ ↙  jump  ↘ ↙
+        //              \        |        /
+        //                \______|______/     (base)
+        let (p, f) = grid(7, -0.45, 0.45, -0.5, 0.5, |_| 0.6);
+        let dense = DenseData::new(&p, &f);
+        let v = validate(&dense, &valley(), &CheckOptions::new(NormalMode::Constant, 1.0));
+        assert_eq!(v.unmapped, 0, "{v:?}");
+        assert!(!v.valid);
+        // The 7-grid has no vertex on x = 0: its 8 horizontal edges crossing it jump, and the
+        // 7 diagonals of the middle column of squares; the 14 triangles there are torn.
+        assert_eq!(v.checks.jump_edges, 15, "{v:?}");
+        assert_eq!(v.torn, 14, "{v:?}");
+        assert_eq!(v.flipped, 0, "{v:?}");
+        // The feet of x = ±ε lie at (∓0.3, y, 0.3) on L: 0.6 apart.
+        assert!((v.checks.max_jump - 0.6).abs() < 1e-6, "{v:?}");
+        // The same scan with interpolated directions (shared along the crease) maps
+        // continuously: the shells meet along the crease's edge sheet.
+        let v = validate(&dense, &valley(), &CheckOptions::new(NormalMode::Interpolated, 1.0));
+        assert_eq!(v.checks.jump_edges, 0, "{v:?}");
+        assert!(v.valid, "{v:?}");
+    }
+
+    #[test]
+    fn polygons_simple_and_positive() {
+        let sq = |pts: &[(f64, f64)]| pts.iter().map(|&(x, y)| DVec2::new(x, y)).collect::<Vec<_>>();
+        assert!(polygon_positive(&sq(&[(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)])));
+        assert!(!polygon_positive(&sq(&[(0.0, 0.0), (0.0, 1.0), (1.0, 0.0)])), "clockwise");
+        // A bow tie has zero area and crosses itself.
+        assert!(!polygon_positive(&sq(&[(0.0, 0.0), (1.0, 1.0), (1.0, 0.0), (0.0, 1.0)])));
+        // Positive area but self-crossing: a loop with a twist.
+        assert!(!polygon_positive(&sq(&[(0.0, 0.0), (4.0, 0.0), (4.0, 4.0), (1.0, -1.0), (0.0, 4.0)])));
+        // Repeated points are merged.
+        assert!(polygon_positive(&sq(&[(0.0, 0.0), (1.0, 0.0), (1.0, 0.0), (0.0, 1.0), (0.0, 0.0)])));
+    }
+
+    #[test]
+    fn stretch_on_a_flat_triangle_is_one() {
+        let info = FaceInfo {
+            verts: [0, 1, 2],
+            pos: [DVec3::ZERO, DVec3::X, DVec3::Y],
+            dir: [DVec3::Z; 3],
+        };
+        let m = Map { face: 0, bary: [0.2, 0.3, 0.5], d: 0.4 };
+        for e in [DVec3::X, DVec3::Y, DVec3::new(1.0, 1.0, 0.0).normalize()] {
+            assert!((stretch(&info, &m, NormalMode::Interpolated, e) - 1.0).abs() < 1e-12);
+        }
+        // Moving along the normal does not move the image.
+        assert!(stretch(&info, &m, NormalMode::Interpolated, DVec3::Z) < 1e-12);
+    }
+}

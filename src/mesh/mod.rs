@@ -354,6 +354,7 @@ pub fn vertex_faces(nv: usize, faces: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
 
 /// A dense mesh as the checks use it: unit face normals, faces around each vertex (CSR) and the
 /// pinched vertices, whose own face normals admit no common direction.
+#[derive(Clone)]
 pub struct DenseData {
     pub pos: Vec<DVec3>,
     pub faces: Vec<[u32; 3]>,
@@ -393,6 +394,24 @@ impl DenseData {
     pub fn vertex_normals(&self, v: u32, out: &mut Vec<DVec3>) {
         out.clear();
         out.extend(self.faces_of(v).iter().map(|&f| self.normal[f as usize]));
+    }
+    /// Constant-normal mode (SPEC §1): the vertices (not pinched) that no base can map, because
+    /// on the scan itself none of their own faces' normals sees all of their faces, become
+    /// exempt like pinched vertices. Returns how many were added.
+    pub fn exempt_for_constant_mode(&mut self) -> usize {
+        let mut added = 0;
+        for v in 0..self.pos.len() {
+            if self.pinched[v] {
+                continue;
+            }
+            let ns: Vec<DVec3> = self.faces_of(v as u32).iter().map(|&f| self.normal[f as usize]).collect();
+            let sees = |n: DVec3| ns.iter().all(|ni| n.dot(*ni) > 0.0);
+            if !ns.iter().any(|&n| sees(n)) {
+                self.pinched[v] = true;
+                added += 1;
+            }
+        }
+        added
     }
     /// Unit normals of the (one or two) faces on edge (a, b).
     pub fn edge_normals(&self, a: u32, b: u32, out: &mut Vec<DVec3>) {
