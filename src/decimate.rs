@@ -562,21 +562,6 @@ impl State {
             self.stats.time_evaluate_s += (t2 - t1).as_secs_f64();
             self.stats.time_commit_s += (t3 - t2).as_secs_f64();
             progress(self.face_count);
-            if std::env::var("DISPDEC_PROFILE").is_ok() && round % 200 == 0 {
-                use std::sync::atomic::Ordering::Relaxed;
-                eprintln!(
-                    "round {round}: {} faces, tried {}, accepted {}, deferred {}, edges {}, midpoints {}, faces own {} all {}, eval {:.1} s",
-                    self.face_count,
-                    self.stats.tried,
-                    self.stats.accepted,
-                    self.stats.deferred,
-                    crate::guarantee::check::EDGES.load(Relaxed),
-                    crate::guarantee::check::MIDPOINTS.load(Relaxed),
-                    crate::guarantee::check::FACES_OWN.load(Relaxed),
-                    crate::guarantee::check::FACES_ALL.load(Relaxed),
-                    self.stats.time_evaluate_s
-                );
-            }
         }
         Ok(())
     }

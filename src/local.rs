@@ -166,8 +166,6 @@ impl State {
         }
         edges.sort_unstable();
         edges.dedup();
-        crate::guarantee::check::FACES_OWN.fetch_add(c.dense_faces.len() as u64, std::sync::atomic::Ordering::Relaxed);
-        crate::guarantee::check::FACES_ALL.fetch_add(faces.len() as u64, std::sync::atomic::Ordering::Relaxed);
         let ctx = CandidateContext {
             st: self,
             c,

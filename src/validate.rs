@@ -204,18 +204,7 @@ impl MapContext for ValidateContext<'_> {
         self.dmax
     }
     fn solve_point(&self, x: DVec3, normals: &[DVec3], _fa: u32, _fb: u32, scratch: &mut Scratch) -> Option<Map> {
-        let r = self.solve(x, normals, scratch);
-        if r.is_none() && std::env::var("DISPDEC_DEBUG_JUMPS").is_ok() {
-            let mut near = Vec::new();
-            let mut tris = Tris::default();
-            let no4 = primary_global(self.base, self.bvh, x, normals, self.mode, self.dmax, false, scratch, &mut near, &mut tris);
-            eprintln!("no solution at {x:?} (normals {normals:?}); without (4): {no4:?}");
-            if let Some(m) = no4 {
-                let info = self.face_info(m.face);
-                eprintln!("   N(X) = {:?}", crate::geometry::interpolate_direction(&info.dir, &m.bary));
-            }
-        }
-        r
+        self.solve(x, normals, scratch)
     }
 }
 

@@ -125,14 +125,16 @@ fn parity_on_bunny(gpu: Gpu, opts: Options, stages: &[usize]) -> Parity {
                 let x = state.dense.pos[v as usize];
                 let cpu = find_primary(x, &normals, &tris, state.mode, state.dmax, !pinched, state.strict && !pinched, &mut scratch);
                 p.compared += 1;
+                // A band answer is the GPU saying it cannot decide: counted apart, never as
+                // agreement (the CPU decides those in f64).
                 let agree = match (a.status, cpu) {
                     (STATUS_BAND_TIE, _) => {
                         p.band_tie += 1;
-                        true
+                        continue;
                     }
                     (STATUS_BAND_MARGINAL, _) => {
                         p.band_marginal += 1;
-                        true
+                        continue;
                     }
                     (STATUS_HIT, Found::Hit(t, h)) => {
                         let err = (h.d - a.d as f64).abs() / state.dmax;
@@ -165,10 +167,11 @@ fn parity_on_bunny(gpu: Gpu, opts: Options, stages: &[usize]) -> Parity {
     p
 }
 
-/// Prints the parity figures; asserts no disagreement, and that the band stays below
-/// `max_band` of the decisions (strict mode sends most of its queries to f64: any undecidable
-/// event within dmax may be another solution).
-fn report(name: &str, p: &Parity, max_band: f64) {
+/// Prints the parity figures; asserts no disagreement outside the band, at least `min_decided`
+/// decisions made outside it, and the band's share within 5 points of the share measured
+/// (`band_measured`; strict mode sends most of its queries to f64: any undecidable event within
+/// dmax may be another solution).
+fn report(name: &str, p: &Parity, band_measured: f64, min_decided: u64) {
     let band = p.band_tie + p.band_marginal;
     eprintln!(
         "parity {name}: {} decisions compared, {} disagreements outside the band, {} in the band ({:.1} %: {} ties, {} marginal), max |d| error {:.2e} dmax",
@@ -180,10 +183,17 @@ fn report(name: &str, p: &Parity, max_band: f64) {
         p.band_marginal,
         p.max_d_err
     );
-    assert!(p.compared > 1000, "{name}: too few decisions compared ({})", p.compared);
+    let decided = p.compared - band;
+    assert!(decided as u64 >= min_decided, "{name}: too few decisions made outside the band ({decided})");
     assert_eq!(p.disagree, 0, "{name}: GPU and CPU disagree outside the tolerance band");
-    assert!((band as f64) <= max_band * p.compared as f64, "{name}: the band swallows too many decisions");
+    let share = band as f64 / p.compared as f64;
+    assert!((share - band_measured).abs() <= 0.05, "{name}: band share {share:.3}, measured {band_measured}");
 }
+
+/// Band shares measured on this machine (lavapipe), `cargo test --release --test shell_kernels
+/// parity -- --nocapture`.
+const INTERP_BAND: f64 = 0.104;
+const CONST_BAND: f64 = 0.413;
 
 #[test]
 fn parity_interpolated_bunny_early_and_late() {
@@ -192,7 +202,7 @@ fn parity_interpolated_bunny_early_and_late() {
         return;
     }
     let p = parity_on_bunny(gpu, Options::default(), &[20_000, 1_000]);
-    report("interpolated", &p, 0.5);
+    report("interpolated", &p, INTERP_BAND, 1000);
 }
 
 #[test]
@@ -202,10 +212,10 @@ fn parity_strict_and_constant_bunny() {
         return;
     }
     let p = parity_on_bunny(gpu, Options { strict: true, ..Options::default() }, &[30_000]);
-    report("strict", &p, 1.0);
+    report("strict", &p, 0.892, 500);
     let gpu = vulkan().unwrap();
     let p = parity_on_bunny(gpu, Options { normals: NormalMode::Constant, ..Options::default() }, &[30_000]);
-    report("constant", &p, 0.75);
+    report("constant", &p, CONST_BAND, 1000);
 }
 
 /// The validator's projection: every dense vertex of the bunny against a meshoptimizer base

@@ -37,11 +37,6 @@ const CROSSING_ITERATIONS: usize = 8;
 /// Why: well inside BARY_EPS, so that the point counts as on the edge for both triangles.
 const CROSSING_TOL: f64 = 1e-11;
 
-/// Counters for profiling (solves of bisection midpoints, edges walked).
-pub static MIDPOINTS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-pub static EDGES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-pub static FACES_OWN: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-pub static FACES_ALL: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
 /// Deepest bisection of a dense edge: a gap still open at this depth is a jump.
 /// Why: SPEC §1 — a jump is certain when it stays open under 30+ bisections.
@@ -274,7 +269,6 @@ pub fn edge_image<C: MapContext>(
     scratch: &mut Scratch,
     out: &mut Vec<Sample>,
 ) -> f64 {
-    EDGES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let len = xa.distance(xb);
     let e = if len > 0.0 { (xb - xa) / len } else { DVec3::X };
     let sa = make_sample(ctx, ma, e);
@@ -351,7 +345,6 @@ fn refine<C: MapContext>(
         return;
     }
     let mid = 0.5 * (x0 + x1);
-    MIDPOINTS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let Some(mm) = ctx.solve_point(mid, normals, s0.m.face, s1.m.face, scratch) else {
         *jump = f64::INFINITY;
         out.push(s1);
@@ -383,7 +376,6 @@ fn split_at_crossing<C: MapContext>(
         return None;
     }
     let xm = x0 + t * (x1 - x0);
-    MIDPOINTS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let mm = ctx.solve_point(xm, normals, s0.m.face, s1.m.face, scratch)?;
     let sm = make_sample(ctx, mm, e);
     // The primary there lies on the shared edge (on both triangles)...
@@ -864,10 +856,6 @@ fn face_loop<C: MapContext>(
         if jump > 0.0 {
             torn = true;
             let counted_here = a < b || dense.faces_of(a).iter().filter(|&&g| dense.faces[g as usize].contains(&b)).count() < 2;
-            if counted_here && min_depth == 0 && std::env::var("DISPDEC_DEBUG_JUMPS").is_ok() {
-                let (s0, s1) = (sc.edge[0], sc.edge[sc.edge.len() - 1]);
-                eprintln!("jump {jump:.3e} on dense edge ({lo}, {hi}): base faces {} -> {}, d {:.3e} -> {:.3e}", s0.m.face, s1.m.face, s0.m.d, s1.m.d);
-            }
             if counted_here && min_depth == 0 {
                 if jump.is_finite() {
                     stats.jump_edges += 1;
@@ -937,12 +925,6 @@ pub fn check_face<C: MapContext>(
         }
         snap_to_vertices(ctx, &mut sc.lp, snap);
         verdict = loop_positive(ctx, &sc.lp);
-    }
-    if std::env::var("DISPDEC_DEBUG_FACE").ok().and_then(|v| v.parse::<u32>().ok()) == Some(f) {
-        eprintln!("face {f}: verdict {verdict:?}");
-        for s in &sc.lp {
-            eprintln!("  face {} verts {:?} bary {:?} d {:.3e} p {:?} sigma {:.3}", s.m.face, s.verts, s.m.bary, s.m.d, s.p, s.sigma);
-        }
     }
     let positive = match verdict {
         Some((pos, chart)) => {
