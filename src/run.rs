@@ -95,6 +95,8 @@ pub struct RecheckSummary {
     /// (strict mode) vertices with more than one solution satisfying (4) on their 2-ring.
     pub ambiguous: usize,
     pub first_unmapped: Vec<u32>,
+    /// Jump edges, largest jump, gap edges, straddling triangles (SPEC §1).
+    pub checks: crate::guarantee::CheckStats,
 }
 
 /// The JSON report of SPEC §6.
@@ -303,6 +305,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
             pinched: recheck.pinched,
             ambiguous: recheck.ambiguous,
             first_unmapped: recheck.unmapped.iter().take(10).map(|&v| dense.input_index[v as usize]).collect(),
+            checks: recheck.checks.clone(),
         },
         global,
         time: Timings {
