@@ -130,13 +130,15 @@ fn seam_split_mesh_gives_the_welded_base() {
     assert!((b - a).abs() <= 0.05 * a, "face-order split: {b} faces against {a}");
 
     // --no-weld keeps the triangles apart: 1,280 separate components, nothing collapses, and
-    // the global check finds the soup torn (coincident copies map onto one face of the two):
+    // the global check finds the soup invalid (coincident copies map onto one face of the two):
     // what happened to such files before welding.
     let (code, r3, err, _) = decimate(&d, &soup, "apart", &["--no-weld"]);
     assert_eq!(code, 1, "{err}");
     assert_eq!(r3["input_cleanup"]["components"], f.len());
     assert_eq!(r3["faces_out"], f.len());
-    assert!(r3["global"]["torn"].as_u64().unwrap() > 0);
+    let g = &r3["global"];
+    assert_eq!(g["valid"], false, "{g}");
+    assert!(g["unmapped"].as_u64().unwrap() + g["flipped"].as_u64().unwrap() + g["torn"].as_u64().unwrap() > 0, "{g}");
 }
 
 /// The bumpy sphere with one defect of every kind `--repair` handles, and what it should count.
