@@ -512,16 +512,18 @@ impl MapContext for CandidateContext<'_> {
         // lies within |d| of x. First the faces around the checked triangles, then, if the
         // reach leaves their box, a grid query of this point's own.
         let outer = self.outer.get_or_init(|| st.outer_faces(self.c, self.tris, self.faces, self.maps, self.extras));
-        let mut reads = Vec::new();
+        let mut reads = self.reads.borrow_mut();
         let mut search = |best: Option<Map>, far: &Tris, scratch: &mut Scratch| -> Option<Map> {
-            if far.is_empty() {
-                return best;
-            }
             let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
+            let before = reads.len();
             for t in 0..far.len() {
                 if crate::geometry::sphere_lower_bound(x, far.sphere[t].0, far.sphere[t].1) <= reach {
                     reads.push(far.ids[t]);
                 }
+            }
+            if reads.len() == before {
+                // No face there is within reach: the search would find nothing.
+                return best;
             }
             pick(best, far, find_primary_hinted(x, normals, far, st.mode, reach.min(st.dmax), true, false, &hint(far), scratch))
         };
@@ -548,7 +550,6 @@ impl MapContext for CandidateContext<'_> {
             t.finish();
             best = search(best, &t, scratch);
         }
-        self.reads.borrow_mut().extend_from_slice(&reads);
         best
     }
 }

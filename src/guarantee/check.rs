@@ -822,12 +822,12 @@ fn face_loop<C: MapContext>(
         let (a, b) = (fv[k], fv[(k + 1) % 3]);
         let (ka, kb) = (k, (k + 1) % 3);
         let (lo, hi, klo, khi) = if a < b { (a, b, ka, kb) } else { (b, a, kb, ka) };
-        let cached = if min_depth == 0 { sc.cache.as_ref().and_then(|c| c.get(&(lo, hi))) } else { None };
+        let cached = if min_depth == 0 { sc.cache.as_ref().and_then(|c| c.get(&(lo, hi)).copied()) } else { None };
         let jump = match cached {
-            Some((j, smp)) => {
+            Some((j, start, len)) => {
                 sc.edge.clear();
-                sc.edge.extend_from_slice(smp);
-                *j
+                sc.edge.extend_from_slice(&sc.arena[start as usize..(start + len) as usize]);
+                j
             }
             None => {
                 dense.edge_normals(lo, hi, &mut sc.normals);
@@ -847,7 +847,8 @@ fn face_loop<C: MapContext>(
                 sc.normals = normals;
                 if min_depth == 0 {
                     if let Some(c) = sc.cache.as_mut() {
-                        c.insert((lo, hi), (j, sc.edge.clone()));
+                        c.insert((lo, hi), (j, sc.arena.len() as u32, sc.edge.len() as u32));
+                        sc.arena.extend_from_slice(&sc.edge);
                     }
                 }
                 j
@@ -885,7 +886,9 @@ pub struct CheckScratch {
     pub solve: Scratch,
     /// Edge images already walked in this check, by (lower, higher) dense vertex: (jump,
     /// samples). Used by [`check_faces`], where neighbouring triangles share edges.
-    cache: Option<std::collections::HashMap<(u32, u32), (f64, Vec<Sample>)>>,
+    cache: Option<std::collections::HashMap<(u32, u32), (f64, u32, u32)>>,
+    /// The cached edges' samples, end to end (the cache holds (start, length) into it).
+    arena: Vec<Sample>,
     normals: Vec<DVec3>,
     edge: Vec<Sample>,
     lp: Vec<Sample>,
@@ -963,6 +966,7 @@ pub fn check_faces<C: MapContext>(
     stats: &mut CheckStats,
 ) -> Result<(), super::primary::Reject> {
     sc.cache.get_or_insert_with(Default::default).clear();
+    sc.arena.clear();
     for &f in faces {
         match check_face(ctx, dense, f, false, sc, stats) {
             FaceCheck::Torn => return Err(super::primary::Reject::Tear),

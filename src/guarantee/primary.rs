@@ -185,6 +185,7 @@ pub fn direction_at(tris: &Tris, t: usize, hit: &ShellHit, mode: NormalMode) -> 
 #[derive(Default)]
 pub struct Scratch {
     bounds: Vec<f64>,
+    order: Vec<(f64, u32)>,
     found: Vec<DVec3>,
 }
 
@@ -226,64 +227,29 @@ pub fn find_primary_hinted(
     scratch.bounds.extend((0..m).map(|t| sphere_lower_bound(x, tris.sphere[t].0, tris.sphere[t].1)));
     scratch.found.clear();
     let mut best: Option<(usize, ShellHit)> = None;
-    let mut hints = hint.iter().copied().filter(|&t| t < m);
-    loop {
-        // The hints first, then the unvisited triangle with the smallest bound (ties: lowest
-        // index). A hint out of reach is only marked visited.
-        let (ti, tb, hinted) = match hints.next() {
-            Some(t) => (t, scratch.bounds[t], true),
-            None => {
-                let mut ti = usize::MAX;
-                let mut tb = f64::INFINITY;
-                for (t, &b) in scratch.bounds.iter().enumerate() {
-                    if b < tb {
-                        tb = b;
-                        ti = t;
-                    }
-                }
-                (ti, tb, false)
-            }
-        };
-        if hinted && !tb.is_finite() {
-            continue; // a repeated hint
-        }
-        if ti == usize::MAX || (!hinted && tb > dmax) {
-            break;
-        }
-        if hinted && (tb > dmax || (!strict && best.is_some_and(|(_, h)| tb > h.d.abs() + SAME_SOLUTION_REL * dmax))) {
-            scratch.bounds[ti] = f64::INFINITY;
-            continue;
-        }
-        let tie = SAME_SOLUTION_REL * dmax;
-        if !strict {
-            if let Some((_, h)) = best {
-                if tb > h.d.abs() + tie {
-                    break;
-                }
-            }
-        }
-        scratch.bounds[ti] = f64::INFINITY;
-        let limit = match best {
+    let tie = SAME_SOLUTION_REL * dmax;
+    // Solves triangle ti and keeps the better hit (smallest |d|; a tie — the same point seen
+    // from faces sharing an edge or a vertex — goes to the lowest face id, so that every search
+    // picks the same face).
+    let visit = |ti: usize, best: &mut Option<(usize, ShellHit)>, found: &mut Vec<DVec3>| {
+        let limit = match *best {
             Some((_, h)) if !strict => h.d.abs() + tie,
             _ => dmax,
         };
         if shell_lower_bound(x, tris, ti, mode) > limit {
-            continue;
+            return;
         }
-        let hits = solve_tri(x, tris, ti, mode, dmax);
-        for h in hits.iter() {
+        for h in solve_tri(x, tris, ti, mode, dmax).iter() {
             if check4 && !condition4(direction_at(tris, ti, &h, mode), normals.iter().copied()) {
                 continue;
             }
             if strict {
                 let p = interpolate_direction(&tris.pos[ti], &h.bary);
-                if !scratch.found.iter().any(|q| q.distance(p) <= SAME_SOLUTION_REL * dmax) {
-                    scratch.found.push(p);
+                if !found.iter().any(|q| q.distance(p) <= SAME_SOLUTION_REL * dmax) {
+                    found.push(p);
                 }
             }
-            // Smallest |d|; a tie (the same point seen from faces sharing an edge or a vertex)
-            // goes to the lowest face id, so that every search picks the same face.
-            let better = match best {
+            let better = match *best {
                 None => true,
                 Some((bt, b)) => {
                     let (da, db) = (h.d.abs(), b.d.abs());
@@ -291,9 +257,37 @@ pub fn find_primary_hinted(
                 }
             };
             if better {
-                best = Some((ti, h));
+                *best = Some((ti, h));
             }
         }
+    };
+    // The hints first (a hint out of reach is only marked visited)...
+    for &ti in hint.iter().filter(|&&t| t < m) {
+        let tb = scratch.bounds[ti];
+        if !tb.is_finite() {
+            continue; // a repeated hint
+        }
+        scratch.bounds[ti] = f64::INFINITY;
+        if tb > dmax || (!strict && best.is_some_and(|(_, h)| tb > h.d.abs() + tie)) {
+            continue;
+        }
+        visit(ti, &mut best, &mut scratch.found);
+    }
+    // ...then the others in the order of their bound (ties: lowest index), until no triangle
+    // can beat the best hit. Only triangles within reach now can be within reach later.
+    let reach = match best {
+        Some((_, h)) if !strict => dmax.min(h.d.abs() + tie),
+        _ => dmax,
+    };
+    scratch.order.clear();
+    scratch.order.extend(scratch.bounds.iter().enumerate().filter(|(_, &b)| b <= reach).map(|(t, &b)| (b, t as u32)));
+    scratch.order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    for k in 0..scratch.order.len() {
+        let (tb, ti) = scratch.order[k];
+        if !strict && best.is_some_and(|(_, h)| tb > h.d.abs() + tie) {
+            break;
+        }
+        visit(ti as usize, &mut best, &mut scratch.found);
     }
     if strict && scratch.found.len() > 1 {
         return Found::Ambiguous;
