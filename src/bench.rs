@@ -72,6 +72,10 @@ pub struct Phases {
     pub recheck_s: f64,
     pub global_s: f64,
     pub total_s: f64,
+    /// The candidate test's CPU seconds per stage (summed over threads; report's
+    /// `collapses.stages`), and over candidates that failed every placement.
+    pub stages_cpu_s: Vec<(String, f64)>,
+    pub rejected_cpu_s: f64,
 }
 
 /// One (mesh, configuration) row.
@@ -269,6 +273,15 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
                 recheck_s: m(|r| r.time.recheck_s),
                 global_s: m(|r| r.time.global_s),
                 total_s: m(|r| r.time.total_s),
+                stages_cpu_s: reports[0]
+                    .collapses
+                    .stages
+                    .stages_cpu_s
+                    .iter()
+                    .enumerate()
+                    .map(|(i, (name, _))| (name.clone(), median(&reports.iter().map(|r| r.collapses.stages.stages_cpu_s[i].1).collect::<Vec<_>>())))
+                    .collect(),
+                rejected_cpu_s: m(|r| r.collapses.stages.rejected_cpu_s),
             };
             rows.push(Row {
                 mesh: name.clone(),

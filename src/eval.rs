@@ -26,8 +26,17 @@ pub struct Accepted {
     pub read_vertices: Vec<u32>,
 }
 
-/// The result of evaluating one candidate: accepted, or the reason the first placement failed.
-pub type Outcome = Result<Accepted, Reject>;
+/// A candidate whose every placement failed.
+#[derive(Clone, Debug)]
+pub struct Rejected {
+    /// Why the first placement failed.
+    pub reason: Reject,
+    /// Where the checks failed: the next try of the same collapse tests these first.
+    pub at: Vec<FailAt>,
+}
+
+/// The result of evaluating one candidate: accepted, or rejected.
+pub type Outcome = Result<Accepted, Rejected>;
 
 /// Evaluates batches of candidate collapses.
 pub trait Evaluator: Sync {

@@ -399,6 +399,8 @@ impl Evaluator for GpuEvaluator {
     fn evaluate(&self, state: &State, batch: &[Candidate]) -> Result<Vec<Outcome>, GpuError> {
         let mut outcomes: Vec<Option<Outcome>> = vec![None; batch.len()];
         let mut first_reason: Vec<Option<Reject>> = vec![None; batch.len()];
+        // Where each candidate's earlier placements failed (tested first by the next).
+        let mut first_fail: Vec<Vec<crate::eval::FailAt>> = batch.iter().map(|c| c.first_fail.clone()).collect();
         let rounds = batch.iter().map(|c| c.placements.len()).max().unwrap_or(0);
         for pi in 0..rounds {
             let pairs: Vec<(usize, usize)> =
@@ -410,10 +412,12 @@ impl Evaluator for GpuEvaluator {
             let t0 = Instant::now();
             let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
             let kernel_s = t0.elapsed().as_secs_f64();
+            let mut fails: Vec<Vec<crate::eval::FailAt>> = pairs.iter().map(|&(ci, _)| std::mem::take(&mut first_fail[ci])).collect();
             let results: Vec<(Result<Accepted, Reject>, u64)> = pairs
                 .par_iter()
                 .zip(prepared.into_par_iter())
-                .map(|(&(ci, pi), prep)| {
+                .zip(fails.par_iter_mut())
+                .map(|((&(ci, pi), prep), first)| {
                     let c = &batch[ci];
                     let (new_dirs, n_region, tris) = match prep.built {
                         Ok(b) => b,
@@ -430,12 +434,15 @@ impl Evaluator for GpuEvaluator {
                         })
                     });
                     let r = solved
-                        .and_then(|maps| state.finish_placement(c, prep.position, new_dirs, n_region, &tris, maps, &mut scratch))
+                        .and_then(|maps| state.finish_placement(c, prep.position, new_dirs, n_region, &tris, maps, &mut scratch, first))
                         .map(|acc| Accepted { placement: pi, ..acc });
                     (r, disagreements)
                 })
                 .collect();
             self.add_stats(&answers, results.iter().map(|r| r.1).sum(), kernel_s);
+            for (&(ci, _), f) in pairs.iter().zip(fails) {
+                first_fail[ci] = f;
+            }
             for (&(ci, _), (r, _)) in pairs.iter().zip(results) {
                 match r {
                     Ok(acc) => outcomes[ci] = Some(Ok(acc)),
@@ -448,7 +455,8 @@ impl Evaluator for GpuEvaluator {
         Ok(outcomes
             .into_iter()
             .zip(first_reason)
-            .map(|(o, r)| o.unwrap_or(Err(r.unwrap_or(Reject::Link))))
+            .zip(first_fail)
+            .map(|((o, r), at)| o.unwrap_or(Err(crate::eval::Rejected { reason: r.unwrap_or(Reject::Link), at })))
             .collect())
     }
 }

@@ -27,6 +27,7 @@
 //! - [`render`]: headless wgpu render of meshes side by side;
 //! - [`run`]: the library side of the `decimate` command (options in, files and report out);
 //! - [`sample`]: the generator of the scan-like sample meshes in `data/`;
+//! - [`stages`]: CPU clocks of the candidate test's stages (report, bench);
 //! - [`settings`]: the settings a base records (BASE.obj, BASE.map) and their resolution
 //!   against flags;
 //! - [`validate`]: the independent, global check of a (scan, base) pair.
@@ -53,6 +54,7 @@ pub mod render;
 pub mod run;
 pub mod sample;
 pub mod settings;
+pub mod stages;
 pub mod topology;
 pub mod validate;
 

@@ -9,8 +9,10 @@
 //!   gain a solution there ([`State::moved_primaries`]).
 
 use crate::decimate::{Candidate, State};
-use crate::eval::{check_faces, find_primary, find_primary_hinted, Accepted, CheckScratch, CheckStats, FaceInfo, Found, Map, MapContext, NormalMode, Outcome, Reject, Scratch, Tris};
+use crate::eval::{check_faces, find_primary, find_primary_bounded, find_primary_hinted, Accepted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Outcome, Reject, Rejected, Scratch, Tris};
 use crate::geometry::{face_cross, vertex_direction};
+use crate::stages::Stage;
+use std::time::Instant;
 use crate::topology::INVALID;
 use glam::DVec3;
 
@@ -69,30 +71,41 @@ impl State {
     /// Tests one candidate, placement by placement (SPEC §2 step 5). The first passing
     /// placement wins; otherwise the first placement's reason is reported.
     pub fn evaluate_candidate(&self, c: &Candidate) -> Outcome {
+        let t0 = Instant::now();
         let mut first_reason = None;
         let mut tris = Tris::default();
         let mut scratch = Scratch::default();
+        let mut first = if self.fail_hints { c.first_fail.clone() } else { Vec::new() };
         for (pi, &p) in c.placements.iter().enumerate() {
-            match self.evaluate_placement(c, p, &mut tris, &mut scratch) {
+            let tp = Instant::now();
+            match self.evaluate_placement(c, p, &mut tris, &mut scratch, &mut first) {
                 Ok(acc) => {
+                    self.clock.candidate(true, pi + 1, t0);
                     return Ok(Accepted { placement: pi, ..acc });
                 }
                 Err(r) => {
+                    self.clock.failed(r, tp);
                     first_reason.get_or_insert(r);
                 }
             }
         }
-        Err(first_reason.unwrap_or(Reject::Link))
+        self.clock.candidate(false, c.placements.len(), t0);
+        Err(Rejected { reason: first_reason.unwrap_or(Reject::Link), at: first })
     }
 
-    fn evaluate_placement(&self, c: &Candidate, p: DVec3, tris: &mut Tris, scratch: &mut Scratch) -> Result<Accepted, Reject> {
-        let (new_dirs, n_region) = self.build_neighbourhood(c, p, tris)?;
+    fn evaluate_placement(&self, c: &Candidate, p: DVec3, tris: &mut Tris, scratch: &mut Scratch, first: &mut Vec<FailAt>) -> Result<Accepted, Reject> {
+        let t = Instant::now();
+        let nb = self.build_neighbourhood(c, p, tris);
+        let t = self.clock.lap(Stage::Neighbourhood, t);
+        let (new_dirs, n_region) = nb?;
         let mut normals = Vec::new();
         let maps = self.solve_region_vertices(c, tris, |i, x, pinched| {
             self.dense.vertex_normals(c.dense[i], &mut normals);
             find_primary(x, &normals, tris, self.mode, self.dmax, !pinched, self.strict && !pinched, scratch)
-        })?;
-        self.finish_placement(c, p, new_dirs, n_region, tris, maps, scratch)
+        });
+        self.clock.lap(Stage::Primaries, t);
+        let maps = maps?;
+        self.finish_placement(c, p, new_dirs, n_region, tris, maps, scratch, first)
     }
 
     /// The primary solutions of the region's dense vertices over the neighbourhood, in
@@ -134,14 +147,16 @@ impl State {
         tris: &Tris,
         mut maps: Vec<Map>,
         scratch: &mut Scratch,
+        first: &mut Vec<FailAt>,
     ) -> Result<Accepted, Reject> {
         let dense = &self.dense;
+        let t = Instant::now();
         let mut read_faces = Vec::new();
         self.far_primaries(c, tris, &mut maps, scratch, &mut read_faces);
         let (extras, near) = self.moved_primaries(c, tris, n_region, scratch);
-        if self.strict {
-            self.strict_ring(c, tris, n_region, &extras, scratch)?;
-        }
+        let r = if self.strict { self.strict_ring(c, tris, n_region, &extras, scratch) } else { Ok(()) };
+        let t = self.clock.lap(Stage::Reach, t);
+        r?;
         // Whole triangles around every vertex whose map changes; only the edges of the vertices
         // whose maps stay but whose edges pass near the region (their images can change only by
         // reaching onto it, which continuity sees).
@@ -176,9 +191,18 @@ impl State {
             extras: &extras,
             reads: std::cell::RefCell::new(read_faces),
         };
-        let mut sc = CheckScratch::default();
-        let mut stats = CheckStats::default();
-        check_faces(&ctx, dense, &faces, &edges, &mut sc, &mut stats)?;
+        self.clock.items(faces.len(), edges.len());
+        let r = check_faces(&ctx, dense, &faces, &edges, self.fail_hints.then_some(&first[..]));
+        self.clock.lap(Stage::Check, t);
+        if let Err((reason, at)) = r {
+            if !self.fail_hints {
+                return Err(reason);
+            }
+            first.retain(|&h| h != at);
+            first.insert(0, at);
+            first.truncate(FAIL_HINTS);
+            return Err(reason);
+        }
         let mut read_faces = ctx.reads.into_inner();
         read_faces.sort_unstable();
         read_faces.dedup();
@@ -406,6 +430,10 @@ impl State {
 
 }
 
+/// How many places of earlier failures a candidate tests first, newest first. Why: a collapse
+/// that fails again mostly fails where it last did; a few cover the placements' differences.
+const FAIL_HINTS: usize = 4;
+
 /// How far beyond its ends' largest |d| a point of a dense edge is searched without a grid query.
 /// Why: a midpoint's |d| rarely exceeds its ends' by much; twice covers the cases measured, and
 /// a larger one falls back to a query of its own (never a wrong answer, only a slower one).
@@ -516,16 +544,13 @@ impl MapContext for CandidateContext<'_> {
         let mut search = |best: Option<Map>, far: &Tris, scratch: &mut Scratch| -> Option<Map> {
             let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
             let before = reads.len();
-            for t in 0..far.len() {
-                if crate::geometry::sphere_lower_bound(x, far.sphere[t].0, far.sphere[t].1) <= reach {
-                    reads.push(far.ids[t]);
-                }
-            }
+            let bounds = scratch.fill_bounds(x, far);
+            reads.extend(bounds.iter().zip(&far.ids).filter(|(&b, _)| b <= reach).map(|(_, &f)| f));
             if reads.len() == before {
                 // No face there is within reach: the search would find nothing.
                 return best;
             }
-            pick(best, far, find_primary_hinted(x, normals, far, st.mode, reach.min(st.dmax), true, false, &hint(far), scratch))
+            pick(best, far, find_primary_bounded(x, normals, far, st.mode, reach.min(st.dmax), true, false, &hint(far), scratch))
         };
         best = search(best, &outer.tris, scratch);
         let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
@@ -553,4 +578,5 @@ impl MapContext for CandidateContext<'_> {
         best
     }
 }
+
 

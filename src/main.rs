@@ -449,7 +449,7 @@ fn run(cli: Cli) -> Result<i32> {
             say.warnings(&r.warnings);
             say.note(&r.backend_note);
             say.line(&format!(
-                "{} against {}: {} ({} dense vertices: {} mapped, {} unmapped, {} pinched, {} ambiguous, {} far hits; {} dense faces: {} flipped, {} torn; {} jump edges, largest jump {:.3e}; {} straddling faces judged in charts){}; max |d| {:.4}, RMS d {:.4}, dmax {:.4}; coverage per base face {:.3}..{:.3}, {} fold and {} hole texels; {:.2} s",
+                "{} against {}: {} ({} dense vertices: {} mapped, {} unmapped, {} pinched, {} ambiguous, {} far hits; {} dense faces: {} flipped, {} torn; {} jump edges, largest jump {:.3e}; {} straddling faces judged in charts){}{}; max |d| {:.4}, RMS d {:.4}, dmax {:.4}; coverage per base face {:.3}..{:.3}, {} fold and {} hole texels; {:.2} s",
                 r.base,
                 r.high,
                 if v.valid { "VALID" } else { "INVALID" },
@@ -466,6 +466,14 @@ fn run(cli: Cli) -> Result<i32> {
                 v.checks.max_jump,
                 v.checks.straddling,
                 if v.exhaustive { " [exhaustive]" } else { "" },
+                if v.exempt_edges > 0 || v.exempt_constant > 0 {
+                    format!(
+                        "; constant mode: {} vertices and {} edges exempt (the scan itself cannot map them; their triangles are not drawn)",
+                        v.exempt_constant, v.exempt_edges
+                    )
+                } else {
+                    String::new()
+                },
                 v.max_abs_d,
                 v.rms_d,
                 v.dmax,

@@ -58,6 +58,11 @@ pub struct Verdict {
     pub exhaustive: bool,
     /// (constant mode) Vertices exempt because no base can map them (counted in `pinched`).
     pub exempt_constant: usize,
+    /// (constant mode) Dense edges exempt because the scan itself cannot map their points (its
+    /// two faces are folded by more than 90°), and the first of them; their triangles are not
+    /// drawn.
+    pub exempt_edges: usize,
+    pub first_exempt_edges: Vec<(u32, u32)>,
     /// Jump edges and the largest jump (SPEC §1), straddling triangles and their charts.
     pub checks: CheckStats,
 }
@@ -410,6 +415,8 @@ pub fn validate_on(
         exhaustive: opts.exhaustive,
         checks,
         exempt_constant,
+        exempt_edges: dense.exempt_edges.len(),
+        first_exempt_edges: dense.exempt_edges.iter().copied().take(10).collect(),
     };
     let maps = maps.into_iter().enumerate().map(|(v, m)| if dense.pinched[v] { None } else { m }).collect();
     Ok((verdict, maps))

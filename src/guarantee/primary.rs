@@ -189,6 +189,16 @@ pub struct Scratch {
     found: Vec<DVec3>,
 }
 
+impl Scratch {
+    /// The sphere lower bound on |x − X| of every triangle of `tris` (the first cull of a
+    /// search), kept for [`find_primary_bounded`].
+    pub fn fill_bounds(&mut self, x: DVec3, tris: &Tris) -> &[f64] {
+        self.bounds.clear();
+        self.bounds.extend((0..tris.len()).map(|t| sphere_lower_bound(x, tris.sphere[t].0, tris.sphere[t].1)));
+        &self.bounds
+    }
+}
+
 /// The primary solution of `x` over `tris` (SPEC §1): among solutions with |d| ≤ dmax that
 /// satisfy condition (4) for `normals`, the one with the smallest |d|. Triangles are visited in
 /// the order of a lower bound on |d| and the search stops as soon as no triangle can beat the
@@ -222,9 +232,26 @@ pub fn find_primary_hinted(
     hint: &[usize],
     scratch: &mut Scratch,
 ) -> Found {
+    scratch.fill_bounds(x, tris);
+    find_primary_bounded(x, normals, tris, mode, dmax, check4, strict, hint, scratch)
+}
+
+/// [`find_primary_hinted`] over bounds already in `scratch` ([`Scratch::fill_bounds`] for the
+/// same `x` and `tris`): for a caller that reads them first.
+#[allow(clippy::too_many_arguments)]
+pub fn find_primary_bounded(
+    x: DVec3,
+    normals: &[DVec3],
+    tris: &Tris,
+    mode: NormalMode,
+    dmax: f64,
+    check4: bool,
+    strict: bool,
+    hint: &[usize],
+    scratch: &mut Scratch,
+) -> Found {
     let m = tris.len();
-    scratch.bounds.clear();
-    scratch.bounds.extend((0..m).map(|t| sphere_lower_bound(x, tris.sphere[t].0, tris.sphere[t].1)));
+    debug_assert_eq!(scratch.bounds.len(), m);
     scratch.found.clear();
     let mut best: Option<(usize, ShellHit)> = None;
     let tie = SAME_SOLUTION_REL * dmax;
@@ -232,11 +259,11 @@ pub fn find_primary_hinted(
     // from faces sharing an edge or a vertex — goes to the lowest face id, so that every search
     // picks the same face).
     let visit = |ti: usize, best: &mut Option<(usize, ShellHit)>, found: &mut Vec<DVec3>| {
-        let limit = match *best {
+        let reach = match *best {
             Some((_, h)) if !strict => h.d.abs() + tie,
             _ => dmax,
         };
-        if shell_lower_bound(x, tris, ti, mode) > limit {
+        if shell_lower_bound(x, tris, ti, mode) > reach {
             return;
         }
         for h in solve_tri(x, tris, ti, mode, dmax).iter() {

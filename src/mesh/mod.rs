@@ -362,6 +362,10 @@ pub struct DenseData {
     pub vf_start: Vec<u32>,
     pub vf: Vec<u32>,
     pub pinched: Vec<bool>,
+    /// (constant mode) Dense edges (lower, higher id), ascending, whose points the scan itself
+    /// cannot map: exempt from continuity, their triangles from orientation (SPEC §1's exempt
+    /// vertices, for the points of an edge). Empty in interpolated mode.
+    pub exempt_edges: Vec<(u32, u32)>,
 }
 
 impl DenseData {
@@ -384,7 +388,7 @@ impl DenseData {
                 maxmin_direction(&ns).is_none()
             })
             .collect();
-        DenseData { pos: pos.to_vec(), faces: faces.to_vec(), normal, vf_start, vf, pinched }
+        DenseData { pos: pos.to_vec(), faces: faces.to_vec(), normal, vf_start, vf, pinched, exempt_edges: Vec::new() }
     }
 
     pub fn faces_of(&self, v: u32) -> &[u32] {
@@ -399,6 +403,29 @@ impl DenseData {
     /// on the scan itself none of their own faces' normals sees all of their faces, become
     /// exempt like pinched vertices. Returns how many were added.
     pub fn exempt_for_constant_mode(&mut self) -> usize {
+        // An edge's inner points lie on its own (one or two) faces only: with constant
+        // normals they are mapped on the scan itself iff one of those faces' normals sees all of
+        // them, as for a vertex. Two faces folded by more than 90° (n1·n2 ≤ 0, a sharp crease or
+        // a thin fin's edge) leave the edge's points without a solution on the scan: no decimated
+        // base of it can be continuous there either.
+        let mut edges = Vec::new();
+        let mut normals = Vec::new();
+        for f in &self.faces {
+            for k in 0..3 {
+                let (a, b) = (f[k], f[(k + 1) % 3]);
+                if a > b {
+                    continue;
+                }
+                self.edge_normals(a, b, &mut normals);
+                let sees = |n: DVec3| normals.iter().all(|ni| n.dot(*ni) > 0.0);
+                if !normals.iter().any(|&n| sees(n)) {
+                    edges.push((a, b));
+                }
+            }
+        }
+        edges.sort_unstable();
+        edges.dedup();
+        self.exempt_edges = edges;
         let mut added = 0;
         for v in 0..self.pos.len() {
             if self.pinched[v] {
@@ -412,6 +439,16 @@ impl DenseData {
             }
         }
         added
+    }
+    /// Whether the edge (a, b) (either order) is exempt ([`DenseData::exempt_edges`]).
+    pub fn is_exempt_edge(&self, a: u32, b: u32) -> bool {
+        !self.exempt_edges.is_empty() && self.exempt_edges.binary_search(&(a.min(b), a.max(b))).is_ok()
+    }
+    /// Whether dense triangle `f` has an exempt edge (it cannot be drawn: it is skipped, like a
+    /// triangle at a pinched vertex).
+    pub fn has_exempt_edge(&self, f: u32) -> bool {
+        let t = self.faces[f as usize];
+        !self.exempt_edges.is_empty() && (0..3).any(|k| self.is_exempt_edge(t[k], t[(k + 1) % 3]))
     }
     /// Unit normals of the (one or two) faces on edge (a, b).
     pub fn edge_normals(&self, a: u32, b: u32, out: &mut Vec<DVec3>) {

@@ -1,0 +1,126 @@
+//! CPU clocks of the candidate test's stages, summed over threads (issue 10's per-stage
+//! timers): where evaluation time goes, and how much of it is spent on candidates that fail.
+//!
+//! The clocks are atomics on the decimator's state, so parallel evaluation adds to them without
+//! locks; they are read once at the end of a run. They never influence a decision.
+
+use crate::guarantee::Reject;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+/// The stages of one placement's test, in the order they run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// The collapsed neighbourhood and its new directions (fold-over test).
+    Neighbourhood = 0,
+    /// Primary solutions of the region's dense vertices.
+    Primaries,
+    /// Faces outside the neighbourhood that may hold a smaller |d|, vertices whose primary
+    /// moves onto the region, (strict) second solutions on the ring.
+    Reach,
+    /// Continuity of the dense edges that pass near the region, then orientation and
+    /// continuity of the dense triangles around changed maps.
+    Check,
+}
+
+const STAGES: [(Stage, &str); 4] = [
+    (Stage::Neighbourhood, "neighbourhood"),
+    (Stage::Primaries, "primaries"),
+    (Stage::Reach, "reach"),
+    (Stage::Check, "check"),
+];
+
+/// Nanoseconds per stage, plus the CPU time of whole candidates by outcome.
+#[derive(Default)]
+pub struct StageClock {
+    ns: [AtomicU64; 4],
+    accepted_ns: AtomicU64,
+    rejected_ns: AtomicU64,
+    placements: AtomicU64,
+    /// Failed placements by reason (`Reject as usize`): count and nanoseconds.
+    failed: [(AtomicU64, AtomicU64); 8],
+    /// Dense triangles and near edges handed to the check.
+    faces: AtomicU64,
+    edges: AtomicU64,
+}
+
+impl StageClock {
+    /// Adds the time since `since` to `stage`; returns now (the next stage's start).
+    pub fn lap(&self, stage: Stage, since: Instant) -> Instant {
+        let now = Instant::now();
+        self.ns[stage as usize].fetch_add((now - since).as_nanos() as u64, Ordering::Relaxed);
+        now
+    }
+
+    /// Adds a whole candidate's time (all its placements) by outcome.
+    pub fn candidate(&self, accepted: bool, placements: usize, since: Instant) {
+        let ns = since.elapsed().as_nanos() as u64;
+        let slot = if accepted { &self.accepted_ns } else { &self.rejected_ns };
+        slot.fetch_add(ns, Ordering::Relaxed);
+        self.placements.fetch_add(placements as u64, Ordering::Relaxed);
+    }
+
+    /// Counts the dense triangles and near edges one placement hands to the check.
+    pub fn items(&self, faces: usize, edges: usize) {
+        self.faces.fetch_add(faces as u64, Ordering::Relaxed);
+        self.edges.fetch_add(edges as u64, Ordering::Relaxed);
+    }
+
+    /// Adds one failed placement's time by the reason it failed.
+    pub fn failed(&self, reason: Reject, since: Instant) {
+        let (n, ns) = &self.failed[reason as usize];
+        n.fetch_add(1, Ordering::Relaxed);
+        ns.fetch_add(since.elapsed().as_nanos() as u64, Ordering::Relaxed);
+    }
+
+    /// The clocks in seconds, for the report.
+    pub fn summary(&self) -> StageSummary {
+        let s = |a: &AtomicU64| a.load(Ordering::Relaxed) as f64 * 1e-9;
+        StageSummary {
+            stages_cpu_s: STAGES.iter().map(|&(st, name)| (name.to_string(), s(&self.ns[st as usize]))).collect(),
+            accepted_cpu_s: s(&self.accepted_ns),
+            rejected_cpu_s: s(&self.rejected_ns),
+            placements_tested: self.placements.load(Ordering::Relaxed),
+            faces_checked: self.faces.load(Ordering::Relaxed),
+            edges_checked: self.edges.load(Ordering::Relaxed),
+            failed_placements: REASONS
+                .iter()
+                .filter(|&&r| self.failed[r as usize].0.load(Ordering::Relaxed) > 0)
+                .map(|&r| {
+                    let (n, ns) = &self.failed[r as usize];
+                    (r.name().to_string(), n.load(Ordering::Relaxed), s(ns))
+                })
+                .collect(),
+        }
+    }
+}
+
+/// Where the candidate test's CPU time went (seconds summed over threads).
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct StageSummary {
+    /// Per stage of a placement's test, in the order they run.
+    pub stages_cpu_s: Vec<(String, f64)>,
+    /// Whole candidates that passed (all placements tried until one passed).
+    pub accepted_cpu_s: f64,
+    /// Whole candidates that failed every placement.
+    pub rejected_cpu_s: f64,
+    /// Placements tested (a candidate tests them in order until one passes).
+    pub placements_tested: u64,
+    /// Dense triangles (orientation and continuity) and near edges (continuity) handed to the
+    /// check, over all placements (a check stops at its first failure).
+    pub faces_checked: u64,
+    pub edges_checked: u64,
+    /// Failed placements by reason: (reason, count, CPU seconds).
+    pub failed_placements: Vec<(String, u64, f64)>,
+}
+
+const REASONS: [Reject; 8] = [
+    Reject::Link,
+    Reject::Boundary,
+    Reject::Valence,
+    Reject::Foldover,
+    Reject::Unmapped,
+    Reject::Flip,
+    Reject::Tear,
+    Reject::Ambiguous,
+];
