@@ -27,7 +27,7 @@ pub struct Accepted {
 }
 
 /// A candidate whose every placement failed.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Rejected {
     /// Why the first placement failed.
     pub reason: Reject,
