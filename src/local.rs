@@ -195,12 +195,11 @@ impl State {
         let r = check_faces(&ctx, dense, &faces, &edges, self.fail_hints.then_some(&first[..]));
         self.clock.lap(Stage::Check, t);
         if let Err((reason, at)) = r {
-            if !self.fail_hints {
-                return Err(reason);
+            if self.fail_hints {
+                first.retain(|&h| h != at);
+                first.insert(0, at);
+                first.truncate(FAIL_HINTS);
             }
-            first.retain(|&h| h != at);
-            first.insert(0, at);
-            first.truncate(FAIL_HINTS);
             return Err(reason);
         }
         let mut read_faces = ctx.reads.into_inner();

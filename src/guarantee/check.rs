@@ -89,6 +89,25 @@ pub fn on_face(verts: &[u32; 3], bary: &[f64; 3], target: &[u32; 3]) -> Option<[
     Some(out)
 }
 
+/// `on_face` for a sample: its point's barycentrics on face `target` (vertices `tv`) when the
+/// point lies there *as a solution of the same dense point*. With interpolated normals the
+/// shells of faces that share an edge or a vertex meet along it at every d, so lying on the
+/// closed face is enough. With constant normals two faces' prisms meet only on the base itself
+/// (d = 0), unless the faces are coplanar: a point d above a shared edge or vertex of face A
+/// projects |d|·sin θ away from it on face B (a wedge of no solution on the convex side, an
+/// overlap where the primary jumps on the concave side).
+fn sample_on_face<C: MapContext>(ctx: &C, s: &Sample, target: u32, tv: &[u32; 3]) -> Option<[f64; 3]> {
+    let b = on_face(&s.verts, &s.m.bary, tv)?;
+    if ctx.mode() == NormalMode::Constant && s.m.face != target {
+        let (pa, pt) = (ctx.face_info(s.m.face).pos, ctx.face_info(target).pos);
+        let sin = geometry::face_normal(pa[0], pa[1], pa[2]).cross(geometry::face_normal(pt[0], pt[1], pt[2])).length();
+        if !(s.m.d.abs() * sin <= SAME_POINT_REL * ctx.dmax()) {
+            return None;
+        }
+    }
+    Some(b)
+}
+
 /// The base vertices carrying a point (non-zero barycentric weight): one to three.
 fn support(verts: &[u32; 3], bary: &[f64; 3]) -> ([u32; 3], usize) {
     let mut s = [0u32; 3];
@@ -220,7 +239,10 @@ enum Relation {
 }
 
 fn relation<C: MapContext>(ctx: &C, a: &Sample, b: &Sample) -> Relation {
-    if a.m.face == b.m.face || on_face(&a.verts, &a.m.bary, &b.verts).is_some() || on_face(&b.verts, &b.m.bary, &a.verts).is_some() {
+    if a.m.face == b.m.face
+        || sample_on_face(ctx, a, b.m.face, &b.verts).is_some()
+        || sample_on_face(ctx, b, a.m.face, &a.verts).is_some()
+    {
         return Relation::Same;
     }
     match a.verts.iter().filter(|v| b.verts.contains(v)).count() {
@@ -379,8 +401,8 @@ fn split_at_crossing<C: MapContext>(
     let mm = ctx.solve_point(xm, normals, s0.m.face, s1.m.face, scratch)?;
     let sm = make_sample(ctx, mm, e);
     // The primary there lies on the shared edge (on both triangles)...
-    let on2 = on_face(&sm.verts, &sm.m.bary, &t2.verts)?;
-    on_face(&sm.verts, &sm.m.bary, &t1.verts)?;
+    let on2 = sample_on_face(ctx, &sm, s1.m.face, &t2.verts)?;
+    sample_on_face(ctx, &sm, s0.m.face, &t1.verts)?;
     // ...and x1's triangle is entered, not left, at the crossing.
     let m2 = Map { face: s1.m.face, bary: on2, d: mm.d };
     let rate2 = bary_rates(&t2, &m2, ctx.mode(), x1 - x0)?[k2];
@@ -831,21 +853,7 @@ fn face_loop<C: MapContext>(
                 j
             }
             None => {
-                dense.edge_normals(lo, hi, &mut sc.normals);
-                sc.edge.clear();
-                let normals = std::mem::take(&mut sc.normals);
-                let j = edge_image(
-                    ctx,
-                    dense.pos[lo as usize],
-                    m[klo],
-                    dense.pos[hi as usize],
-                    m[khi],
-                    &normals,
-                    min_depth,
-                    &mut sc.solve,
-                    &mut sc.edge,
-                );
-                sc.normals = normals;
+                let j = walk_edge(ctx, dense, (lo, m[klo]), (hi, m[khi]), min_depth, sc);
                 if min_depth == 0 {
                     if let Some(c) = sc.cache.as_mut() {
                         c.insert((lo, hi), (j, sc.arena.len() as u32, sc.edge.len() as u32));
@@ -879,6 +887,17 @@ fn face_loop<C: MapContext>(
         }
     }
     !torn
+}
+
+/// The image of dense edge (a, b) from the maps of its ends into `sc.edge` (the edge's two faces'
+/// normals for condition (4)); returns [`edge_image`]'s largest open gap.
+fn walk_edge<C: MapContext>(ctx: &C, dense: &DenseData, (a, ma): (u32, Map), (b, mb): (u32, Map), min_depth: u32, sc: &mut CheckScratch) -> f64 {
+    dense.edge_normals(a, b, &mut sc.normals);
+    sc.edge.clear();
+    let normals = std::mem::take(&mut sc.normals);
+    let jump = edge_image(ctx, dense.pos[a as usize], ma, dense.pos[b as usize], mb, &normals, min_depth, &mut sc.solve, &mut sc.edge);
+    sc.normals = normals;
+    jump
 }
 
 /// Reusable buffers of [`check_face`].
@@ -1012,12 +1031,7 @@ pub fn check_faces<C: MapContext>(
                 if dense.is_exempt_edge(a, b) {
                     return Ok(());
                 }
-                dense.edge_normals(a, b, &mut sc.normals);
-                sc.edge.clear();
-                let normals = std::mem::take(&mut sc.normals);
-                let jump = edge_image(ctx, dense.pos[a as usize], ma, dense.pos[b as usize], mb, &normals, 0, &mut sc.solve, &mut sc.edge);
-                sc.normals = normals;
-                if jump > 0.0 {
+                if walk_edge(ctx, dense, (a, ma), (b, mb), 0, sc) > 0.0 {
                     Err((Reject::Tear, item))
                 } else {
                     Ok(())
@@ -1127,6 +1141,61 @@ mod tests {
         // continuously: the shells meet along the crease's edge sheet.
         let v = validate(&dense, &valley(), &CheckOptions::new(NormalMode::Interpolated, 1.0));
         assert_eq!(v.checks.jump_edges, 0, "{v:?}");
+        assert!(v.valid, "{v:?}");
+    }
+
+    /// The roof base: the valley upside down, a convex ridge along the y axis.
+    ///
+    /// ```text
+    ///               x = 0
+    ///                 /\            z = 1 − |x|
+    ///           T1  /    \  T2
+    ///             /        \
+    ///   x = -1  /            \  x = 1
+    /// ```
+    fn roof() -> Base {
+        let mut b = valley();
+        for p in &mut b.positions {
+            p.z = 1.0 - p.z;
+        }
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let (nl, nr) = (DVec3::new(-s, 0.0, s), DVec3::new(s, 0.0, s));
+        b.directions = vec![nl, DVec3::Z, nr, nl, DVec3::Z, nr];
+        b
+    }
+
+    #[test]
+    fn constant_normals_leave_a_wedge_without_solution_above_a_convex_ridge() {
+        // Constant normals over the roof: a flat scan at z = 1.1 projects orthogonally onto each
+        // face, and a point with |x| < 0.1 lands beyond the ridge on both (T1's foot of (x, 1.1)
+        // is at x' = (x + 0.1)/2): a wedge with no solution. A walk that leaves T1 across the
+        // ridge edge at d ≠ 0 does not enter T2 at the same point of L (it is |d|·sin θ away), so
+        // the crossing proves nothing: measured before that rule, this scan was judged valid.
+        //
+        //     z = 1.1   ●──────●───╳╳╳───●──────●   (scan; ╳ no solution)
+        //                 ↘        \  /       ↙
+        //                     ↘      \/    ↙
+        //                  T1    ↘   /\  ↙   T2    (base)
+        //
+        // The 3-grid's vertices sit at x = ±0.15, ±0.45 (all mapped); the 4 edges along x and
+        // the 3 diagonals of the middle column cross the wedge, and its 6 triangles are torn.
+        let (p, f) = grid(3, -0.45, 0.45, -0.5, 0.5, |_| 1.1);
+        let dense = DenseData::new(&p, &f);
+        let v = validate(&dense, &roof(), &CheckOptions::new(NormalMode::Constant, 1.0));
+        assert_eq!(v.unmapped, 0, "{v:?}");
+        assert!(!v.valid, "{v:?}");
+        assert_eq!((v.checks.gap_edges, v.checks.jump_edges), (7, 0), "{v:?}");
+        assert_eq!((v.torn, v.flipped), (6, 0), "{v:?}");
+        // With interpolated directions (+z along the ridge) the shells meet along the ridge's
+        // edge sheet, and the same scan maps continuously.
+        let v = validate(&dense, &roof(), &CheckOptions::new(NormalMode::Interpolated, 1.0));
+        assert!(v.valid, "{v:?}");
+        assert_eq!(v.checks.gap_edges + v.checks.jump_edges, 0, "{v:?}");
+        // The roof itself, with vertices on the ridge (d = 0 everywhere), is valid in constant
+        // mode: a crossing on L is exact.
+        let (p, f) = grid(4, -0.5, 0.5, -0.5, 0.5, |x| 1.0 - x.abs());
+        let dense = DenseData::new(&p, &f);
+        let v = validate(&dense, &roof(), &CheckOptions::new(NormalMode::Constant, 1.0));
         assert!(v.valid, "{v:?}");
     }
 

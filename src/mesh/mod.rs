@@ -368,6 +368,13 @@ pub struct DenseData {
     pub exempt_edges: Vec<(u32, u32)>,
 }
 
+/// Whether one of `normals` has a positive dot product with all of them: with constant normals,
+/// a scan point on these faces only (a vertex's, an edge's inner points) is then mapped on the
+/// scan itself, at d = 0.
+fn one_face_normal_sees_all(normals: &[DVec3]) -> bool {
+    normals.iter().any(|n| normals.iter().all(|ni| n.dot(*ni) > 0.0))
+}
+
 impl DenseData {
     pub fn new(pos: &[DVec3], faces: &[[u32; 3]]) -> DenseData {
         let nv = pos.len();
@@ -417,8 +424,7 @@ impl DenseData {
                     continue;
                 }
                 self.edge_normals(a, b, &mut normals);
-                let sees = |n: DVec3| normals.iter().all(|ni| n.dot(*ni) > 0.0);
-                if !normals.iter().any(|&n| sees(n)) {
+                if !one_face_normal_sees_all(&normals) {
                     edges.push((a, b));
                 }
             }
@@ -431,9 +437,8 @@ impl DenseData {
             if self.pinched[v] {
                 continue;
             }
-            let ns: Vec<DVec3> = self.faces_of(v as u32).iter().map(|&f| self.normal[f as usize]).collect();
-            let sees = |n: DVec3| ns.iter().all(|ni| n.dot(*ni) > 0.0);
-            if !ns.iter().any(|&n| sees(n)) {
+            self.vertex_normals(v as u32, &mut normals);
+            if !one_face_normal_sees_all(&normals) {
                 self.pinched[v] = true;
                 added += 1;
             }
