@@ -7,7 +7,7 @@ fn main() {
     let gpu = Gpu::new(wgpu::Backends::PRIMARY).expect("adapter");
     println!("adapter: {}", gpu.describe());
     let normals = vec![[0.0f32, 0.0, 1.0, 0.0]; 4];
-    let k = ShellKernel::new(gpu, &dispdec::gpu_eval::shell_source(), &normals, &[0, 1, 2, 3], &[0, 1, 2]).expect("kernel");
+    let k = ShellKernel::new(gpu, &dispdec::gpu::eval::shell_source(), &normals, &[0, 1, 2, 3], &[0, 1, 2]).expect("kernel");
     let tri = GpuTri { p0: [0.0, 0.0, 0.0, 0.0], p1: [1.0, 0.0, 0.0, 0.0], p2: [0.0, 1.0, 0.0, 0.0], n0: [0.0, 0.0, 1.0, 0.0], n1: [0.0, 0.0, 1.0, 0.0], n2: [0.0, 0.0, 1.0, 0.0], sphere: [0.3, 0.3, 0.0, 0.8] };
     for n in [1usize, 10_000] {
         let q = vec![GpuQuery { x: [0.2, 0.2, 0.1], vertex: 0, tri_start: 0, tri_count: 1, flags: 1, hint: u32::MAX }; n];

@@ -5,7 +5,7 @@ use anyhow::Result;
 use clap::{Parser, Subcommand, ValueEnum};
 use dispdec::decimate::{Options, DEFAULT_MAX_VALENCE};
 use dispdec::eval::NormalMode;
-use dispdec::run::{decimate, DecimateJob};
+use dispdec::app::run::{decimate, DecimateJob};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
@@ -306,11 +306,11 @@ fn main() {
     }
 }
 
-fn backend_of(backend: Backend) -> dispdec::run::Backend {
+fn backend_of(backend: Backend) -> dispdec::app::run::Backend {
     match backend {
-        Backend::Cpu => dispdec::run::Backend::Cpu,
-        Backend::Gpu => dispdec::run::Backend::Gpu,
-        Backend::Auto => dispdec::run::Backend::Auto,
+        Backend::Cpu => dispdec::app::run::Backend::Cpu,
+        Backend::Gpu => dispdec::app::run::Backend::Gpu,
+        Backend::Auto => dispdec::app::run::Backend::Auto,
     }
 }
 
@@ -433,7 +433,7 @@ fn run(cli: Cli) -> Result<i32> {
             Ok(0)
         }
         Cmd::Validate { high, base, json, fold_image, resolution, dmax, strict, no_strict, normals, prep, backend, threads, exhaustive } => {
-            let job = dispdec::run::ValidateJob {
+            let job = dispdec::app::run::ValidateJob {
                 exhaustive,
                 backend: backend_of(backend),
                 high,
@@ -444,7 +444,7 @@ fn run(cli: Cli) -> Result<i32> {
                 flags: flags(&prep, normals, dmax, if strict { Some(true) } else if no_strict { Some(false) } else { None }),
                 threads,
             };
-            let r = dispdec::run::validate(&job)?;
+            let r = dispdec::app::run::validate(&job)?;
             let v = &r.verdict;
             say.warnings(&r.warnings);
             say.note(&r.backend_note);
@@ -490,12 +490,12 @@ fn run(cli: Cli) -> Result<i32> {
         }
         Cmd::Bake { high, base, map, output, resolution, dmax, kind, normals, prep } => {
             let kind = match kind {
-                MapKind::Scalar => dispdec::bake::Kind::Scalar,
-                MapKind::Normalized => dispdec::bake::Kind::Normalized,
-                MapKind::Vector => dispdec::bake::Kind::Vector,
+                MapKind::Scalar => dispdec::maps::bake::Kind::Scalar,
+                MapKind::Normalized => dispdec::maps::bake::Kind::Normalized,
+                MapKind::Vector => dispdec::maps::bake::Kind::Vector,
             };
-            let job = dispdec::run::BakeJob { high, base, map, output, resolution, kind, flags: flags(&prep, normals, dmax, None) };
-            let r = dispdec::run::bake(&job)?;
+            let job = dispdec::app::run::BakeJob { high, base, map, output, resolution, kind, flags: flags(&prep, normals, dmax, None) };
+            let r = dispdec::app::run::bake(&job)?;
             say.warnings(&r.warnings);
             say.line(&format!(
                 "wrote {} ({} map) and {}: {} of {} texels carry d ({} normals, dmax {:.4}; the pair is {}; {:.1} s)",
@@ -523,7 +523,7 @@ fn run(cli: Cli) -> Result<i32> {
         }
         Cmd::Reconstruct { base, disp, levels, output, compare, plot, normals } => {
             let (table, warnings) =
-                dispdec::run::reconstruct(&base, &disp, levels, &output, compare.as_deref(), plot.as_deref(), normals.map(mode_of))?;
+                dispdec::app::run::reconstruct(&base, &disp, levels, &output, compare.as_deref(), plot.as_deref(), normals.map(mode_of))?;
             say.warnings(&warnings);
             if !table.is_empty() {
                 say.line("level  faces      RMS->scan  Hausdorff->scan  RMS<-scan  Hausdorff<-scan  (fractions of the scan's bbox diagonal)");
@@ -538,7 +538,7 @@ fn run(cli: Cli) -> Result<i32> {
             Ok(0)
         }
         Cmd::Export { base, disp, output, levels } => {
-            let (e, warnings) = dispdec::run::export(&base, &disp, &output, levels)?;
+            let (e, warnings) = dispdec::app::run::export(&base, &disp, &output, levels)?;
             say.warnings(&warnings);
             say.line(&format!(
                 "wrote {} ({} bytes: the {}-face base with a {}x{} 16-bit normalized map{})",
@@ -552,7 +552,7 @@ fn run(cli: Cli) -> Result<i32> {
             Ok(0)
         }
         Cmd::Render { meshes, output, size, yaw, pitch } => {
-            let adapter = dispdec::run::render(&meshes, &output, dispdec::render::View { size, yaw, pitch })?;
+            let adapter = dispdec::app::run::render(&meshes, &output, dispdec::gpu::render::View { size, yaw, pitch })?;
             say.line(&format!("wrote {} ({} meshes, {adapter})", output.display(), meshes.len()));
             Ok(0)
         }
@@ -563,22 +563,22 @@ fn run(cli: Cli) -> Result<i32> {
             let data = data
                 .or_else(|| std::env::var_os("DISPDEC_DATA").map(PathBuf::from))
                 .unwrap_or_else(|| PathBuf::from("../shared/data"));
-            let job = dispdec::bench::BenchJob {
+            let job = dispdec::app::bench::BenchJob {
                 data,
                 meshes,
                 configs: configs
                     .into_iter()
                     .map(|c| match c {
-                        BenchConfig::Cpu1 => dispdec::bench::Config::Cpu1,
-                        BenchConfig::Cpu => dispdec::bench::Config::Cpu,
-                        BenchConfig::Gpu => dispdec::bench::Config::Gpu,
+                        BenchConfig::Cpu1 => dispdec::app::bench::Config::Cpu1,
+                        BenchConfig::Cpu => dispdec::app::bench::Config::Cpu,
+                        BenchConfig::Gpu => dispdec::app::bench::Config::Gpu,
                     })
                     .collect(),
                 runs,
                 work: work.unwrap_or_else(|| std::env::temp_dir().join(format!("dispdec-bench-{}", std::process::id()))),
             };
-            let report = dispdec::bench::bench(&job, |line| say.line(line))?;
-            print!("{}", dispdec::bench::table(&report));
+            let report = dispdec::app::bench::bench(&job, |line| say.line(line))?;
+            print!("{}", dispdec::app::bench::table(&report));
             if let Some(p) = json {
                 let text = serde_json::to_string_pretty(&report)?;
                 dispdec::mesh::write_atomic(&p, text.as_bytes())?;
@@ -589,8 +589,8 @@ fn run(cli: Cli) -> Result<i32> {
             if !(1_000..=4_000_000).contains(&faces) {
                 return Err(dispdec::Error::Usage(format!("--faces must be between 1000 and 4000000, got {faces}")).into());
             }
-            let m = dispdec::sample::generate(dispdec::sample::SampleSpec { faces, seed });
-            let text = dispdec::sample::to_obj(
+            let m = dispdec::mesh::sample::generate(dispdec::mesh::sample::SampleSpec { faces, seed });
+            let text = dispdec::mesh::sample::to_obj(
                 &m,
                 &format!("dispdec sample surface: {} faces, seed {seed} (dispdec sample --faces {faces} --seed {seed})", m.faces.len()),
             );

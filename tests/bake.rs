@@ -4,7 +4,7 @@
 
 mod common;
 use common::*;
-use dispdec::bake::DispMap;
+use dispdec::maps::bake::DispMap;
 
 fn ok(args: &[&str]) -> String {
     let o = run(args);
@@ -23,7 +23,7 @@ fn png16_and_pfm_decode_to_the_same_d_within_quantisation() {
     assert!(dir.join("d.png.json").exists(), "the PNG's scale and offset sidecar");
     let a = DispMap::read(&png, 20).unwrap();
     let b = DispMap::read(&pfm, 20).unwrap();
-    let q: dispdec::bake::Quantisation = serde_json::from_slice(&std::fs::read(dir.join("d.png.json")).unwrap()).unwrap();
+    let q: dispdec::maps::bake::Quantisation = serde_json::from_slice(&std::fs::read(dir.join("d.png.json")).unwrap()).unwrap();
     assert_eq!(a.d.len(), b.d.len());
     let mut compared = 0;
     for (x, y) in a.d.iter().zip(&b.d) {
@@ -96,13 +96,13 @@ fn horse_rebuilt_at_level_five_matches_the_scan() {
     let max: f64 = said.split(", max ").nth(1).and_then(|t| t.split(';').next()).and_then(|t| t.trim().parse().ok()).unwrap();
     assert!(max < 3.2e-3, "{said}");
     assert!(said.contains(" 0 where the map has no d"), "{said}");
-    let b = dispdec::run::load_base_with_directions(&base).unwrap().base;
+    let b = dispdec::app::run::load_base_with_directions(&base).unwrap().base;
     let map = DispMap::read(&disp, b.faces.len()).unwrap();
     let scan = dispdec::mesh::load_dense(&horse).unwrap();
     let mut last_rms = f64::INFINITY;
     for level in 0..=5 {
-        let r = dispdec::reconstruct::reconstruct(&b, &map, level, dispdec::eval::NormalMode::Interpolated);
-        let d = dispdec::reconstruct::compare(&r, level, &scan.positions, &scan.faces);
+        let r = dispdec::maps::reconstruct::reconstruct(&b, &map, level, dispdec::eval::NormalMode::Interpolated);
+        let d = dispdec::maps::reconstruct::compare(&r, level, &scan.positions, &scan.faces);
         eprintln!("{d:?}");
         let rms = d.rms_to_scan.max(d.rms_from_scan);
         assert!(rms < last_rms, "the error falls with every level: {d:?}");
@@ -143,8 +143,8 @@ fn bake_writes_uvs_exr_and_the_three_kinds() {
     assert_eq!(vts.len(), 3 * 20);
     assert!(vts.iter().all(|&(u, v)| (0.0..=1.0).contains(&u) && (0.0..=1.0).contains(&v)));
     assert!(uv.lines().any(|l| l.starts_with("f 1/1/1 ")) || uv.lines().filter(|l| l.starts_with("f ")).all(|l| l.matches('/').count() == 6));
-    let b = dispdec::run::load_base_with_directions(&dir.join("s.obj")).unwrap().base;
-    let b0 = dispdec::run::load_base_with_directions(&base).unwrap().base;
+    let b = dispdec::app::run::load_base_with_directions(&dir.join("s.obj")).unwrap().base;
+    let b0 = dispdec::app::run::load_base_with_directions(&base).unwrap().base;
     assert_eq!((&b.positions, &b.faces, &b.directions), (&b0.positions, &b0.faces, &b0.directions), "DISP.obj is the base");
     // The corner's UV finds the texel of that corner: the map read there equals DispMap::sample.
     let m = DispMap::read(&spfm, 20).unwrap();
@@ -169,7 +169,7 @@ fn bake_writes_uvs_exr_and_the_three_kinds() {
     for row in 0..n {
         for col in 0..n {
             let d = m.d[row * n + col];
-            let Some((_, _, dir)) = dispdec::bake::texel_point(&m.atlas, &b0, dispdec::eval::NormalMode::Interpolated, col as u32, row as u32) else { continue };
+            let Some((_, _, dir)) = dispdec::maps::bake::texel_point(&m.atlas, &b0, dispdec::eval::NormalMode::Interpolated, col as u32, row as u32) else { continue };
             let k = (n - 1 - row) * n + col; // PFM rows run bottom to top
             if d.is_nan() {
                 assert!(nv[k].is_nan() && vv[3 * k].is_nan());
@@ -223,7 +223,7 @@ fn export_writes_a_glb_the_khronos_validator_accepts() {
     let bytes = std::fs::read(&glb).unwrap();
     assert_eq!(&bytes[..4], b"glTF");
     assert_eq!(u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize, bytes.len());
-    let meshes = dispdec::export::read_glb_meshes(&bytes).unwrap();
+    let meshes = dispdec::maps::export::read_glb_meshes(&bytes).unwrap();
     assert_eq!(meshes.len(), 2);
     assert_eq!((meshes[0].0.len(), meshes[0].1.len()), (60, 20), "the base, one vertex per corner");
     assert_eq!(meshes[1].1.len(), 20 * 16, "the mesh rebuilt at level 2");

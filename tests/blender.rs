@@ -84,9 +84,9 @@ fn rebuild_in_blender(scan_name: &str) {
     }
     let faces: Vec<[u32; 3]> = m.faces.iter().filter(|f| f.iter().all(|&v| id[v as usize] != u32::MAX)).map(|f| f.map(|v| id[v as usize])).collect();
     eprintln!("{scan_name}: {} of {} Blender vertices displaced (the rest lie over the scan's holes: NaN)", positions.len(), m.positions.len());
-    let rebuilt = dispdec::reconstruct::Rebuilt { positions, faces };
+    let rebuilt = dispdec::maps::reconstruct::Rebuilt { positions, faces };
     let hi = dispdec::mesh::load_dense(&scan).unwrap();
-    let d = dispdec::reconstruct::compare(&rebuilt, 5, &hi.positions, &hi.faces);
+    let d = dispdec::maps::reconstruct::compare(&rebuilt, 5, &hi.positions, &hi.faces);
     eprintln!("{scan_name}: Blender, Simple subdivision level 5 + Displace (vector EXR): {d:?}");
     // dispdec's own reconstruction at the same level, for comparison.
     let scalar = dir.join("disp-s.pfm");

@@ -4,7 +4,7 @@
 
 mod common;
 use common::*;
-use dispdec::render::{Vertex, RENDER_WGSL};
+use dispdec::gpu::render::{Vertex, RENDER_WGSL};
 use wgpu::naga;
 
 fn require_gpu() -> bool {
@@ -50,8 +50,8 @@ fn renders_meshes_side_by_side_on_vulkan() {
     let (iv, if_) = icosahedron();
     let (sv, sf) = icosphere(3);
     let meshes = vec![(iv, if_), (sv.iter().map(|&p| bumpy(p)).collect(), sf)];
-    let view = dispdec::render::View { size: 96, yaw: 20.0, pitch: 15.0 };
-    let (w, h, rgba) = dispdec::render::render(&gpu, &meshes, &view).unwrap();
+    let view = dispdec::gpu::render::View { size: 96, yaw: 20.0, pitch: 15.0 };
+    let (w, h, rgba) = dispdec::gpu::render::render(&gpu, &meshes, &view).unwrap();
     assert_eq!((w, h), (192, 96));
     // Each slot has a white background border and shaded (non-white, not black) pixels.
     for slot in 0..2u32 {

@@ -9,7 +9,7 @@ use common::*;
 use dispdec::decimate::{Options, State};
 use dispdec::eval::{find_primary, CpuEvaluator, Evaluator, Found, NormalMode, Scratch};
 use dispdec::gpu::{Gpu, GpuAnswer, GpuNode, GpuParams, GpuQuery, GpuTri};
-use dispdec::gpu_eval::*;
+use dispdec::gpu::eval::*;
 use serde_json::Value;
 use wgpu::naga;
 
@@ -193,7 +193,9 @@ fn report(name: &str, p: &Parity, band_measured: f64, min_decided: u64) {
 /// Band shares measured on this machine (lavapipe), `cargo test --release --test shell_kernels
 /// parity -- --nocapture`.
 const INTERP_BAND: f64 = 0.104;
-const CONST_BAND: f64 = 0.413;
+/// Constant mode at 45,000 faces: 61.4 % in the band, nearly all ties (a dense vertex on a base
+/// edge or vertex at d = 0, found by every face around it).
+const CONST_BAND: f64 = 0.614;
 
 #[test]
 fn parity_interpolated_bunny_early_and_late() {
@@ -214,7 +216,8 @@ fn parity_strict_and_constant_bunny() {
     let p = parity_on_bunny(gpu, Options { strict: true, ..Options::default() }, &[30_000]);
     report("strict", &p, 0.892, 500);
     let gpu = vulkan().unwrap();
-    let p = parity_on_bunny(gpu, Options { normals: NormalMode::Constant, ..Options::default() }, &[30_000]);
+    // Constant mode stops at ~38,600 faces on the bunny (README, Modes): a stage above it.
+    let p = parity_on_bunny(gpu, Options { normals: NormalMode::Constant, ..Options::default() }, &[45_000]);
     report("constant", &p, CONST_BAND, 1000);
 }
 
@@ -234,7 +237,7 @@ fn validate_projection_on_gpu_equals_cpu() {
     let dir = tempdir("validate-parity");
     let qem = dir.join("qem.obj");
     write_obj(&qem, &scan.positions, &faces);
-    let base = dispdec::run::load_base_with_directions(&qem).unwrap().base;
+    let base = dispdec::app::run::load_base_with_directions(&qem).unwrap().base;
     let dmax = 0.1 * dispdec::mesh::bbox_diagonal(scan.positions.iter().copied());
     let ev = GpuEvaluator::new(gpu, &dense).unwrap();
     let (cv, cm) = dispdec::validate::validate_on(&dense, &base, &dispdec::validate::CheckOptions::new(NormalMode::Interpolated, dmax), None).unwrap();

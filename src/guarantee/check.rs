@@ -1233,7 +1233,7 @@ mod tests {
         // constant normals a point of an edge whose two faces are folded by more than 90° (the
         // generated sample's fin rim, n1·n2 ≤ 0) has no solution there: measured without the
         // edge rule, this base had 9 gap edges, 1 jump edge and 18 torn triangles.
-        let mesh = crate::sample::generate(crate::sample::SampleSpec { faces: 6000, seed: 7 });
+        let mesh = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 6000, seed: 7 });
         let dense = DenseData::new(&mesh.positions, &mesh.faces);
         let base = Base { positions: mesh.positions.clone(), directions: vec![DVec3::Z; mesh.positions.len()], faces: mesh.faces.clone() };
         let dmax = 0.1 * crate::mesh::bbox_diagonal(mesh.positions.iter().copied());

@@ -5,6 +5,7 @@
 mod obj;
 mod ply;
 pub mod repair;
+pub mod sample;
 
 use crate::geometry::{face_normal, maxmin_direction};
 use crate::topology::{Topology, TopologyError};

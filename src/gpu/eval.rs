@@ -11,7 +11,7 @@
 //! decisions, maps and output bytes as the CPU path; the counters say how much work fell in the
 //! band.
 
-use crate::bvh::Bvh;
+use crate::geometry::bvh::Bvh;
 use crate::decimate::{Candidate, State};
 use crate::eval::{best_on_triangle, find_primary, Accepted, Evaluator, Found, Map, NormalMode, Outcome, Reject, Scratch, Tris};
 use crate::geometry::ShellHit;
@@ -24,7 +24,7 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 /// The WGSL source of the shell kernels, before the generated constants.
-pub const SHELL_WGSL: &str = include_str!("../shaders/shell.wgsl");
+pub const SHELL_WGSL: &str = include_str!("../../shaders/shell.wgsl");
 
 /// Two triangles whose best |d| differ by less than this (× dmax) are a tie f32 cannot order.
 /// Why: f32 roots carry errors near 1e-6·dmax on scan-scale triangles; 100× margin.
@@ -83,7 +83,7 @@ pub const MODE_CONSTANT: u32 = 1;
 pub fn shell_constants() -> String {
     let f = |name: &str, v: f64| format!("const {name}: f32 = {:e};\n", v as f32);
     let u = |name: &str, v: u32| format!("const {name}: u32 = {v}u;\n");
-    let mut s = String::from("// Generated from Rust (gpu_eval::shell_constants): do not edit.\n");
+    let mut s = String::from("// Generated from Rust (gpu::eval::shell_constants): do not edit.\n");
     s += &f("BARY_EPS", crate::geometry::BARY_EPS);
     s += &f("BAND_D", BAND_D);
     s += &f("BAND_T", BAND_T);

@@ -4,7 +4,7 @@
 //! face count as the reference.
 
 use crate::decimate::Options;
-use crate::run::{decimate, Backend, DecimateJob, Report};
+use crate::app::run::{decimate, Backend, DecimateJob, Report};
 use crate::Error;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -148,8 +148,8 @@ fn mesh_path(job: &BenchJob, name: &str) -> Result<PathBuf, Error> {
         "sample1m" => {
             let p = job.work.join("sample-1m.obj");
             if !p.exists() {
-                let m = crate::sample::generate(crate::sample::SampleSpec { faces: 1_000_000, seed: 1 });
-                let text = crate::sample::to_obj(&m, "dispdec sample surface (dispdec sample --faces 1000000 --seed 1)");
+                let m = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 1_000_000, seed: 1 });
+                let text = crate::mesh::sample::to_obj(&m, "dispdec sample surface (dispdec sample --faces 1000000 --seed 1)");
                 crate::mesh::write_atomic(&p, text.as_bytes())?;
             }
             return Ok(p);

@@ -4,6 +4,8 @@
 //! These functions are the oracle that any other evaluator (the WGSL kernels of the GPU issue)
 //! must mirror: same names, same order of operations, same constants.
 
+pub mod bvh;
+
 use glam::DVec3;
 
 /// A solution is accepted when all barycentric coordinates are at least `-BARY_EPS`.

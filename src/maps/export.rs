@@ -11,9 +11,9 @@
 //! - with `levels`, the mesh rebuilt at that level as a second node, so any viewer shows the
 //!   detail.
 
-use crate::bake::{DispMap, Kind, Quantisation};
+use crate::maps::bake::{DispMap, Kind, Quantisation};
 use crate::eval::NormalMode;
-use crate::reconstruct::Rebuilt;
+use crate::maps::reconstruct::Rebuilt;
 use crate::validate::Base;
 use glam::DVec3;
 use gltf_json as json;
@@ -150,13 +150,13 @@ pub fn export_glb(base: &Base, mode: NormalMode, map: &DispMap, rebuilt: Option<
     let normalized: Vec<f32> = (0..atlas.size * atlas.size)
         .map(|i| {
             let d = map.d[i as usize];
-            match crate::bake::texel_point(&atlas, base, mode, i % atlas.size, i / atlas.size) {
+            match crate::maps::bake::texel_point(&atlas, base, mode, i % atlas.size, i / atlas.size) {
                 Some((_, _, dir)) if !d.is_nan() => (d as f64 * dir.length()) as f32,
                 _ => f32::NAN,
             }
         })
         .collect();
-    let (png, q) = crate::bake::png16(&normalized, atlas.size, atlas.faces, Kind::Normalized);
+    let (png, q) = crate::maps::bake::png16(&normalized, atlas.size, atlas.faces, Kind::Normalized);
     let image_view = push_view(&mut root, &mut bin, &png, None);
     let image = root.push(json::Image {
         buffer_view: Some(image_view),

@@ -1,5 +1,8 @@
 //! The only place that calls wgpu: device acquisition, kept apart from the work that uses it.
 
+pub mod eval;
+pub mod render;
+
 /// Why no GPU work could start.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {

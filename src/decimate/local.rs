@@ -11,7 +11,7 @@
 use crate::decimate::{Candidate, State};
 use crate::eval::{check_faces, find_primary, find_primary_bounded, find_primary_hinted, Accepted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Outcome, Reject, Rejected, Scratch, Tris};
 use crate::geometry::{face_cross, vertex_direction};
-use crate::stages::Stage;
+use crate::decimate::stages::Stage;
 use std::time::Instant;
 use crate::topology::INVALID;
 use glam::DVec3;

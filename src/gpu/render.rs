@@ -5,7 +5,7 @@ use crate::gpu::{Gpu, GpuError};
 use glam::{DMat3, DVec3};
 
 /// WGSL of the render pipeline.
-pub const RENDER_WGSL: &str = include_str!("../shaders/render.wgsl");
+pub const RENDER_WGSL: &str = include_str!("../../shaders/render.wgsl");
 
 /// One vertex as the shader reads it: clip-space position and the face normal.
 #[repr(C)]

@@ -12,7 +12,7 @@
 //! separates the two triangles of a cell, so that a bilinear lookup inside a chart never reads
 //! another chart's texels (the displacement map fills gutters from its own chart).
 
-use crate::bvh::Bvh;
+use crate::geometry::bvh::Bvh;
 use crate::eval::{Map, NormalMode, Scratch, Tris};
 use crate::geometry::{barycentric, interpolate_direction};
 use crate::mesh::DenseData;

@@ -5,7 +5,7 @@
 //! Triangles are visited best-first by a lower bound on |d| (the distance from the point to a
 //! BVH node's box, then to the triangle), so a vertex costs a handful of cubic solves.
 
-use crate::bvh::Bvh;
+use crate::geometry::bvh::Bvh;
 use crate::guarantee::{check_face, find_primary, solve_tri, direction_at, CheckScratch, CheckStats, FaceCheck, FaceInfo, Found, Map, MapContext, NormalMode, Scratch, Tris, SAME_SOLUTION_REL};
 use crate::mesh::{vertex_faces, DenseData};
 use glam::DVec3;

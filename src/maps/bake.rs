@@ -12,9 +12,9 @@
 //! do when they displace a tessellated mesh along interpolated vertex normals); `vector`, the
 //! object-space vector d·N(X).
 
-use crate::bvh::Bvh;
+use crate::geometry::bvh::Bvh;
 use crate::eval::{Map, NormalMode};
-use crate::fold::Atlas;
+use crate::maps::fold::Atlas;
 use crate::geometry::{clamp_bary, face_normal, interpolate_direction};
 use crate::mesh::DenseData;
 use crate::validate::Base;
@@ -152,7 +152,7 @@ pub struct BakeSources {
 /// Bakes every texel of `base`'s atlas from the dense triangles' images: `maps[v]` is dense
 /// vertex v's primary solution over the whole base (the validator's projection).
 pub fn bake(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMode, dmax: f64, size: u32) -> (DispMap, BakeSources) {
-    let owners = crate::fold::cover_owners(dense, base, maps, mode, dmax, size);
+    let owners = crate::maps::fold::cover_owners(dense, base, maps, mode, dmax, size);
     let atlas = owners.atlas;
     let n = atlas.size;
     // The covering dense triangles nearest a texel on face f's chart, within OWNER_SEARCH texels.

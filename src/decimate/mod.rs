@@ -4,9 +4,14 @@
 //! edge queue; an [`Evaluator`] tests a batch of independent candidates; passing candidates are
 //! committed in queue order. A batch of one is exactly the paper's serial algorithm.
 
+pub mod grid;
+pub mod local;
+pub mod recheck;
+pub mod stages;
+
 use crate::eval::{Evaluator, FaceInfo, FailAt, Map, NormalMode, Outcome, Reject, Tris};
 use crate::geometry::{face_cross, vertex_direction};
-use crate::grid::{DenseGrid, FaceGrid};
+use crate::decimate::grid::{DenseGrid, FaceGrid};
 use crate::mesh::{DenseData, DenseMesh};
 use crate::topology::{face_of, Topology, INVALID};
 use glam::DVec3;
@@ -95,7 +100,7 @@ pub struct Stats {
     pub time_evaluate_s: f64,
     pub time_commit_s: f64,
     /// Where the candidate test's CPU time went (filled at the end of a run).
-    pub stages: crate::stages::StageSummary,
+    pub stages: crate::decimate::stages::StageSummary,
 }
 
 /// The whole decimation state: dense mesh (immutable), base mesh, association, queue.
@@ -136,7 +141,7 @@ pub struct State {
     fail_memo: HashMap<u64, Vec<FailAt>>,
     pub stats: Stats,
     /// CPU time of the candidate test per stage (report only; never read by a decision).
-    pub clock: crate::stages::StageClock,
+    pub clock: crate::decimate::stages::StageClock,
     /// Test first where a collapse's earlier placement or try failed (on by default; off, the
     /// plain order: the same verdicts, which a test checks).
     pub fail_hints: bool,
@@ -706,7 +711,7 @@ mod tests {
         // The scan-like sample (bumps, a fin, an overhang) rejects collapses by tears and
         // flips; testing the place of a collapse's last failure first, and near edges before
         // triangles, must give the same base, map for map, as the plain order.
-        let mesh = crate::sample::generate(crate::sample::SampleSpec { faces: 3000, seed: 7 });
+        let mesh = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 3000, seed: 7 });
         let dense = crate::mesh::check_and_compact(std::path::Path::new("sample"), mesh).unwrap();
         let run = |hints: bool| {
             let mut st = State::new(&dense, &Options::default());

@@ -2,13 +2,13 @@
 
 use crate::decimate::{Options, State, Stats};
 use crate::topology::topology_summary;
-use crate::recheck::Recheck;
+use crate::decimate::recheck::Recheck;
 use crate::eval::{CpuEvaluator, Evaluator, NormalMode};
-use crate::gpu_eval::{BandStats, GpuEvaluator};
-use crate::mapfile::{MapFile, Record, STATUS_MAPPED, STATUS_PINCHED, STATUS_UNREFERENCED};
+use crate::gpu::eval::{BandStats, GpuEvaluator};
+use crate::maps::mapfile::{MapFile, Record, STATUS_MAPPED, STATUS_PINCHED, STATUS_UNREFERENCED};
 use crate::mesh::repair::{Cleanup, Preparation};
 use crate::mesh::{self, write_atomic};
-use crate::bake::Kind;
+use crate::maps::bake::Kind;
 use crate::settings::{Flags, Settings};
 use crate::Error;
 use std::path::PathBuf;
@@ -481,7 +481,7 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
         compare_chords: true,
     };
     let (verdict, maps) = crate::validate::validate_on(&dense, b, &check, gpu.as_ref().map(|g| g as &dyn crate::validate::Project))?;
-    let fold = crate::fold::fold_image(&dense, b, &maps, normals, dmax, job.resolution);
+    let fold = crate::maps::fold::fold_image(&dense, b, &maps, normals, dmax, job.resolution);
     let per_face = fold.coverage();
     let coverage = CoverageSummary {
         resolution: fold.atlas.size,
@@ -641,7 +641,7 @@ pub struct BakeReport {
     /// holes where the base does).
     pub verdict: crate::validate::Verdict,
     /// How many texels came from the covering dense triangle, from a gap fill, or have no d.
-    pub sources: crate::bake::BakeSources,
+    pub sources: crate::maps::bake::BakeSources,
     pub agreement: Option<MapAgreement>,
     pub warnings: Vec<String>,
 }
@@ -665,7 +665,7 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
     let dense = mesh::DenseData::new(&scan.positions, &scan.faces);
     let per_vertex = match &job.map {
         Some(p) => {
-            let m = crate::mapfile::MapFile::read(p)?;
+            let m = crate::maps::mapfile::MapFile::read(p)?;
             if m.base_faces as usize != b.faces.len() {
                 return Err(Error::Input {
                     path: p.display().to_string(),
@@ -678,11 +678,11 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
     };
     // The primaries of the whole scan over the whole base: the map inverts exactly these.
     let (verdict, maps) = crate::validate::validate_on(&dense, b, &crate::validate::CheckOptions::new(normals, dmax), None)?;
-    let (map, sources) = crate::bake::bake(&dense, b, &maps, normals, dmax, job.resolution);
+    let (map, sources) = crate::maps::bake::bake(&dense, b, &maps, normals, dmax, job.resolution);
     let agreement = per_vertex.map(|m| {
         let mut diffs = Vec::new();
         let mut missing = 0;
-        for r in m.records.iter().filter(|r| r.status == crate::mapfile::STATUS_MAPPED) {
+        for r in m.records.iter().filter(|r| r.status == crate::maps::mapfile::STATUS_MAPPED) {
             match map.sample(r.face, r.bary[1] as f64, r.bary[2] as f64) {
                 Some(d) => diffs.push((d - r.d as f64).abs()),
                 None => missing += 1,
@@ -719,7 +719,7 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
     let obj = mesh::obj_with_uvs(&b.positions, &b.directions, &b.faces, |f, k| map.atlas.uv_up(f, k), &header);
     let side_json = serde_json::to_string_pretty(&side).expect("sidecar");
     mesh::write_all_atomic(&[
-        (crate::bake::sidecar_path(out).as_path(), side_json.as_bytes()),
+        (crate::maps::bake::sidecar_path(out).as_path(), side_json.as_bytes()),
         (uv_mesh.as_path(), obj.as_bytes()),
         (out.as_path(), &bytes),
     ])?;
@@ -749,7 +749,7 @@ pub fn reconstruct(
     compare: Option<&std::path::Path>,
     plot: Option<&std::path::Path>,
     normals: Option<NormalMode>,
-) -> Result<(Vec<crate::reconstruct::Distances>, Vec<String>), Error> {
+) -> Result<(Vec<crate::maps::reconstruct::Distances>, Vec<String>), Error> {
     if plot.is_some() && compare.is_none() {
         return Err(Error::Usage("--plot needs --compare HIGH".into()));
     }
@@ -762,7 +762,7 @@ pub fn reconstruct(
     let mut warnings = loaded.warnings.clone();
     warnings.extend(r.warnings);
     let b = &loaded.base;
-    let map = crate::bake::DispMap::read(disp, b.faces.len())?;
+    let map = crate::maps::bake::DispMap::read(disp, b.faces.len())?;
     let scan = match compare {
         Some(p) => Some(mesh::load_scan(p, &r.preparation)?),
         None => None,
@@ -773,9 +773,9 @@ pub fn reconstruct(
         if scan.is_none() && level < levels {
             continue;
         }
-        let rebuilt = crate::reconstruct::reconstruct(b, &map, level, r.normals);
+        let rebuilt = crate::maps::reconstruct::reconstruct(b, &map, level, r.normals);
         if let Some(s) = &scan {
-            table.push(crate::reconstruct::compare(&rebuilt, level, &s.positions, &s.faces));
+            table.push(crate::maps::reconstruct::compare(&rebuilt, level, &s.positions, &s.faces));
         }
         last = Some(rebuilt);
     }
@@ -783,7 +783,7 @@ pub fn reconstruct(
     let header = format!("dispdec reconstruct: {} at level {levels}, {} faces", base.display(), rebuilt.faces.len());
     write_atomic(out, mesh::obj_with_normals(&rebuilt.positions, &[], &rebuilt.faces, &header).as_bytes())?;
     if let Some(p) = plot {
-        if let Err(e) = write_atomic(p, &crate::plot::error_plot(&table)) {
+        if let Err(e) = write_atomic(p, &crate::maps::plot::error_plot(&table)) {
             let _ = std::fs::remove_file(out);
             return Err(e);
         }
@@ -797,7 +797,7 @@ pub fn reconstruct(
 /// `dispdec export BASE.obj DISP -o OUT.glb [--levels L]`: the binary glTF of the base (its
 /// settings give the normal mode) with the scalar map DISP and, with `levels`, the mesh rebuilt
 /// at that level.
-pub fn export(base: &std::path::Path, disp: &std::path::Path, out: &std::path::Path, levels: Option<u32>) -> Result<(crate::export::Exported, Vec<String>), Error> {
+pub fn export(base: &std::path::Path, disp: &std::path::Path, out: &std::path::Path, levels: Option<u32>) -> Result<(crate::maps::export::Exported, Vec<String>), Error> {
     if out.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()) != Some("glb".into()) {
         return Err(Error::Usage(format!("{}: export writes binary glTF (.glb)", out.display())));
     }
@@ -807,9 +807,9 @@ pub fn export(base: &std::path::Path, disp: &std::path::Path, out: &std::path::P
     let loaded = load_base_with_directions(base)?;
     let r = crate::settings::resolve(&Flags::default(), loaded.settings.as_ref(), &base.display().to_string());
     let b = &loaded.base;
-    let map = crate::bake::DispMap::read(disp, b.faces.len())?;
-    let rebuilt = levels.map(|l| (l, crate::reconstruct::reconstruct(b, &map, l, r.normals)));
-    let (bytes, info) = crate::export::export_glb(b, r.normals, &map, rebuilt.as_ref().map(|(l, m)| (*l, m)));
+    let map = crate::maps::bake::DispMap::read(disp, b.faces.len())?;
+    let rebuilt = levels.map(|l| (l, crate::maps::reconstruct::reconstruct(b, &map, l, r.normals)));
+    let (bytes, info) = crate::maps::export::export_glb(b, r.normals, &map, rebuilt.as_ref().map(|(l, m)| (*l, m)));
     write_atomic(out, &bytes)?;
     Ok((info, loaded.warnings))
 }
@@ -818,7 +818,7 @@ pub fn export(base: &std::path::Path, disp: &std::path::Path, out: &std::path::P
 // dispdec render
 
 /// `dispdec render MESH... -o VIEW.png`: returns the adapter used.
-pub fn render(meshes: &[PathBuf], out: &std::path::Path, view: crate::render::View) -> Result<String, Error> {
+pub fn render(meshes: &[PathBuf], out: &std::path::Path, view: crate::gpu::render::View) -> Result<String, Error> {
     if meshes.is_empty() {
         return Err(Error::Usage("render needs at least one mesh".into()));
     }
@@ -830,14 +830,14 @@ pub fn render(meshes: &[PathBuf], out: &std::path::Path, view: crate::render::Vi
         if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb")) {
             // A binary glTF: each of its meshes, side by side.
             let bytes = std::fs::read(p).map_err(|e| Error::Input { path: p.display().to_string(), msg: format!("cannot read file: {e}") })?;
-            loaded.extend(crate::export::read_glb_meshes(&bytes).map_err(|msg| Error::Input { path: p.display().to_string(), msg })?);
+            loaded.extend(crate::maps::export::read_glb_meshes(&bytes).map_err(|msg| Error::Input { path: p.display().to_string(), msg })?);
         } else {
             let b = mesh::load_base(p)?;
             loaded.push((b.positions, b.faces));
         }
     }
     let gpu = crate::gpu::Gpu::new(wgpu::Backends::PRIMARY)?;
-    let (w, h, rgba) = crate::render::render(&gpu, &loaded, &view)?;
-    write_atomic(out, &crate::render::png_rgba(w, h, &rgba))?;
+    let (w, h, rgba) = crate::gpu::render::render(&gpu, &loaded, &view)?;
+    write_atomic(out, &crate::gpu::render::png_rgba(w, h, &rgba))?;
     Ok(gpu.describe())
 }

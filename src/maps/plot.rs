@@ -1,7 +1,7 @@
 //! A small PNG line chart of reconstruction error against subdivision level (log scale), drawn
 //! directly into pixels with a 5×7 bitmap font: no plotting dependency for one figure.
 
-use crate::reconstruct::Distances;
+use crate::maps::reconstruct::Distances;
 
 const W: usize = 640;
 const H: usize = 400;

@@ -5,8 +5,8 @@
 //! result has no cracks and is closed wherever the base is. Where the map has no d (the scan was
 //! not met: its own holes), the faces touching such a vertex are left out, as in the scan.
 
-use crate::bake::DispMap;
-use crate::bvh::Bvh;
+use crate::maps::bake::DispMap;
+use crate::geometry::bvh::Bvh;
 use crate::eval::NormalMode;
 use crate::geometry::{face_normal, interpolate_direction};
 use crate::validate::Base;
@@ -158,7 +158,7 @@ pub fn compare(rebuilt: &Rebuilt, level: u32, scan_pos: &[DVec3], scan_faces: &[
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fold::Atlas;
+    use crate::maps::fold::Atlas;
 
     //      2
     //      | \        two triangles sharing edge 1-2; a constant map d = 0.5
