@@ -190,7 +190,6 @@ impl State {
             maps: &maps,
             extras: &extras,
             reads: std::cell::RefCell::new(read_faces),
-            outer_nearest: std::cell::Cell::new(None),
         };
         self.clock.items(faces.len(), edges.len());
         let r = check_faces(&ctx, dense, &faces, &edges, self.fail_hints.then_some(&first[..]));
@@ -460,14 +459,7 @@ struct CandidateContext<'a> {
     extras: &'a [(u32, Map)],
     /// Faces outside the neighbourhood that bisection midpoints were solved on.
     reads: std::cell::RefCell<Vec<u32>>,
-    /// The last point searched against the outer faces and its smallest sphere bound there.
-    outer_nearest: std::cell::Cell<Option<(DVec3, f64)>>,
 }
-
-/// Relative slack on the outer faces' Lipschitz skip.
-/// Why: the bound and the distance carry rounding of ~1e-16 of their size; 1e-12 is far above
-/// it and far below any reach that decides something.
-const LIPSCHITZ_SLACK: f64 = 1e-12;
 
 impl MapContext for CandidateContext<'_> {
     fn map_of(&self, v: u32) -> Option<Map> {
@@ -548,13 +540,10 @@ impl MapContext for CandidateContext<'_> {
         // reach leaves their box, a grid query of this point's own.
         let outer = self.outer.get_or_init(|| st.outer_faces(self.c, self.tris, self.faces, self.maps, self.extras));
         let mut reads = self.reads.borrow_mut();
-        let mut search = |best: Option<Map>, far: &Tris, record: bool, scratch: &mut Scratch| -> Option<Map> {
+        let mut search = |best: Option<Map>, far: &Tris, scratch: &mut Scratch| -> Option<Map> {
             let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
             let before = reads.len();
             let bounds = scratch.fill_bounds(x, far);
-            if record {
-                self.outer_nearest.set(Some((x, bounds.iter().copied().fold(f64::INFINITY, f64::min))));
-            }
             reads.extend(bounds.iter().zip(&far.ids).filter(|(&b, _)| b <= reach).map(|(_, &f)| f));
             if reads.len() == before {
                 // No face there is within reach: the search would find nothing.
@@ -562,17 +551,7 @@ impl MapContext for CandidateContext<'_> {
             }
             pick(best, far, find_primary_bounded(x, normals, far, st.mode, reach.min(st.dmax), true, false, &hint(far), scratch))
         };
-        // Nothing of the outer faces is within reach when the last point searched there was
-        // farther from all of them than its distance to this one allows (the sphere bound is
-        // 1-Lipschitz in x): that search would read nothing and find nothing.
-        let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
-        let skip = self.outer_nearest.get().is_some_and(|(x0, m0)| {
-            let moved = x.distance(x0);
-            m0 - moved - LIPSCHITZ_SLACK * (m0 + moved + reach) > reach
-        });
-        if !skip {
-            best = search(best, &outer.tris, true, scratch);
-        }
+        best = search(best, &outer.tris, scratch);
         let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
         let (blo, bhi) = (x - DVec3::splat(reach), x + DVec3::splat(reach));
         if !(blo.cmpge(outer.lo).all() && bhi.cmple(outer.hi).all()) {
@@ -593,7 +572,7 @@ impl MapContext for CandidateContext<'_> {
                 }
             }
             t.finish();
-            best = search(best, &t, false, scratch);
+            best = search(best, &t, scratch);
         }
         best
     }

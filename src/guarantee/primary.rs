@@ -169,16 +169,6 @@ pub fn solve_tri(x: DVec3, tris: &Tris, t: usize, mode: NormalMode, dmax: f64) -
     }
 }
 
-/// [`solve_tri`] where only solutions with |d| ≤ `reach` matter (see
-/// [`geometry::solve_shell_within`]).
-#[inline]
-pub fn solve_tri_within(x: DVec3, tris: &Tris, t: usize, mode: NormalMode, dmax: f64, reach: f64) -> geometry::Hits {
-    match mode {
-        NormalMode::Interpolated => geometry::solve_shell_within(x, &tris.pos[t], &tris.dir[t], dmax, reach),
-        NormalMode::Constant => solve_constant(x, &tris.pos[t], dmax),
-    }
-}
-
 /// The direction at a hit: interpolated, or the face normal in constant mode.
 #[inline]
 pub fn direction_at(tris: &Tris, t: usize, hit: &ShellHit, mode: NormalMode) -> DVec3 {
@@ -276,8 +266,7 @@ pub fn find_primary_bounded(
         if shell_lower_bound(x, tris, ti, mode) > reach {
             return;
         }
-        // A solution beyond the reach is never better (and strict's reach is dmax).
-        for h in solve_tri_within(x, tris, ti, mode, dmax, reach).iter() {
+        for h in solve_tri(x, tris, ti, mode, dmax).iter() {
             if check4 && !condition4(direction_at(tris, ti, &h, mode), normals.iter().copied()) {
                 continue;
             }
