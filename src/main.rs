@@ -104,17 +104,20 @@ enum Cmd {
         #[arg(long)]
         json: Option<PathBuf>,
         /// Runs per mesh and path (the median is reported).
-        #[arg(long, default_value_t = 3)]
+        #[arg(long, default_value_t = 1)]
         runs: usize,
         /// Folder of the scans (default: $DISPDEC_DATA, else ../shared/data).
         #[arg(long)]
         data: Option<PathBuf>,
         /// Meshes: bunny, horse, igea (268k faces), turbineblade (199k), sample1m (generated), or
         /// paths of your own.
-        #[arg(long, value_delimiter = ',', default_value = "bunny,horse,igea,sample1m")]
+        /// The default (the bunny, one run, both CPU paths) takes a few minutes on two cores;
+        /// the heavier sets are opt-in.
+        #[arg(long, value_delimiter = ',', default_value = "bunny")]
         meshes: Vec<String>,
-        /// Paths to compare.
-        #[arg(long, value_enum, value_delimiter = ',', default_value = "cpu1,cpu,gpu")]
+        /// Paths to compare (gpu: the GPU evaluator on the first adapter; on Mesa's lavapipe it
+        /// is several times slower than the CPU path).
+        #[arg(long, value_enum, value_delimiter = ',', default_value = "cpu1,cpu")]
         configs: Vec<BenchConfig>,
         /// Folder for the generated sample and the outputs (default: a temporary folder).
         #[arg(long)]

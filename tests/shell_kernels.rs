@@ -348,6 +348,10 @@ fn bench_compares_the_paths_on_the_same_input() {
         assert!(row["ratio_to_meshopt"].as_f64().unwrap() > 1.0);
     }
     assert_eq!(rows[0]["threads"], 1);
+    // The per-stage timers, in the JSON and in the printed stage table.
+    let stages: Vec<&str> = rows[0]["median"]["stages_cpu_s"].as_array().unwrap().iter().map(|s| s[0].as_str().unwrap()).collect();
+    assert_eq!(stages, ["neighbourhood", "primaries", "reach", "continuity", "orientation"]);
+    assert!(out.contains("| continuity | orientation | pick | commit |"), "{out}");
     if gpu {
         assert!(rows[2]["adapter"].as_str().unwrap().contains("Vulkan"));
         assert!(rows[2]["band_fraction"].as_f64().is_some());

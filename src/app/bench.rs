@@ -337,6 +337,27 @@ pub fn table(r: &BenchReport) -> String {
             row.ratio_to_meshopt
         );
     }
+    // Where the time goes: the candidate test's stages (CPU seconds summed over threads) and
+    // the serial pick and commit (wall seconds), medians.
+    if let Some(first) = r.rows.first() {
+        let names: Vec<&str> = first.median.stages_cpu_s.iter().map(|(n, _)| n.as_str()).collect();
+        s += &format!("\nstages (median s; the test's stages are CPU seconds summed over threads)\n\n| mesh | path | {} | pick | commit | 1 → {} threads |\n", names.join(" | "), r.cores);
+        s += &format!("|---|---|{}---:|---:|---:|\n", "---:|".repeat(names.len()));
+        for row in &r.rows {
+            let m = &row.median;
+            let stages: Vec<String> = m.stages_cpu_s.iter().map(|(_, v)| format!("{v:.2}")).collect();
+            // The speed-up of all threads over one, where both rows exist for this mesh.
+            let speedup = match row.config {
+                Config::Cpu => r
+                    .rows
+                    .iter()
+                    .find(|o| o.mesh == row.mesh && o.config == Config::Cpu1)
+                    .map_or("-".into(), |o| format!("{:.2}×", o.median.total_s / m.total_s)),
+                _ => "-".into(),
+            };
+            s += &format!("| {} | {} | {} | {:.2} | {:.2} | {} |\n", row.mesh, row.config.name(), stages.join(" | "), m.pick_s, m.commit_s, speedup);
+        }
+    }
     for sk in &r.skipped {
         s += &format!("\nnot run: {sk}\n");
     }

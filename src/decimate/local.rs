@@ -9,7 +9,7 @@
 //!   gain a solution there ([`State::moved_primaries`]).
 
 use crate::decimate::{Candidate, State};
-use crate::eval::{check_faces, find_primary, find_primary_bounded, find_primary_hinted, Accepted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Outcome, Reject, Rejected, Scratch, Tris};
+use crate::eval::{check_faces, find_primary, CheckOut, find_primary_bounded, find_primary_hinted, Accepted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Outcome, Reject, Rejected, Scratch, Tris};
 use crate::geometry::{face_cross, vertex_direction};
 use crate::decimate::stages::Stage;
 use std::time::Instant;
@@ -155,7 +155,7 @@ impl State {
         self.far_primaries(c, tris, &mut maps, scratch, &mut read_faces);
         let (extras, near) = self.moved_primaries(c, tris, n_region, scratch);
         let r = if self.strict { self.strict_ring(c, tris, n_region, &extras, scratch) } else { Ok(()) };
-        let t = self.clock.lap(Stage::Reach, t);
+        self.clock.lap(Stage::Reach, t);
         r?;
         // Whole triangles around every vertex whose map changes; only the edges of the vertices
         // whose maps stay but whose edges pass near the region (their images can change only by
@@ -186,14 +186,16 @@ impl State {
             c,
             tris,
             faces: &faces,
-            outer: std::cell::OnceCell::new(),
+            outer: std::sync::OnceLock::new(),
             maps: &maps,
             extras: &extras,
-            reads: std::cell::RefCell::new(read_faces),
         };
         self.clock.items(faces.len(), edges.len());
-        let r = check_faces(&ctx, dense, &faces, &edges, self.fail_hints.then_some(&first[..]));
-        self.clock.lap(Stage::Check, t);
+        let mut out = CheckOut { reads: read_faces, ..Default::default() };
+        let r = check_faces(&ctx, dense, &faces, &edges, self.fail_hints.then_some(&first[..]), &mut out);
+        self.clock.add(Stage::Continuity, out.continuity_ns);
+        self.clock.add(Stage::Orientation, out.orientation_ns);
+        let mut read_faces = out.reads;
         if let Err((reason, at)) = r {
             if self.fail_hints {
                 first.retain(|&h| h != at);
@@ -202,7 +204,6 @@ impl State {
             }
             return Err(reason);
         }
-        let mut read_faces = ctx.reads.into_inner();
         read_faces.sort_unstable();
         read_faces.dedup();
         let mut read_vertices: Vec<u32> = faces.iter().flat_map(|&f| dense.faces[f as usize]).collect();
@@ -438,6 +439,10 @@ const FAIL_HINTS: usize = 4;
 /// a larger one falls back to a query of its own (never a wrong answer, only a slower one).
 const OUTER_REACH: f64 = 2.0;
 
+/// Most faces a midpoint's search visits first (its ends' faces and the fan between them).
+/// Why: the valence cap is 12, so a fan has at most 12 faces beside the two ends'.
+const HINT_FAN: usize = 14;
+
 /// The faces outside a candidate's neighbourhood that its bisection midpoints may reach, and the
 /// box they cover.
 struct Outer {
@@ -454,11 +459,9 @@ struct CandidateContext<'a> {
     tris: &'a Tris,
     /// The dense faces checked.
     faces: &'a [u32],
-    outer: std::cell::OnceCell<Outer>,
+    outer: std::sync::OnceLock<Outer>,
     maps: &'a [Map],
     extras: &'a [(u32, Map)],
-    /// Faces outside the neighbourhood that bisection midpoints were solved on.
-    reads: std::cell::RefCell<Vec<u32>>,
 }
 
 impl MapContext for CandidateContext<'_> {
@@ -533,19 +536,43 @@ impl MapContext for CandidateContext<'_> {
             }
         };
         let hint = |t: &Tris| -> [usize; 2] { [t.index_of(fa).unwrap_or(usize::MAX), t.index_of(fb).unwrap_or(usize::MAX)] };
+        // In the neighbourhood, the ends' faces and, where they share only a vertex, the fan
+        // around it: a midpoint between them mostly lies on a face of that fan, and a first
+        // hit there culls the rest of the search by its bound (the answer is the same).
+        let mut near = [usize::MAX; HINT_FAN];
+        let [ia, ib] = hint(self.tris);
+        let mut n = 0;
+        for i in [ia, ib] {
+            if i != usize::MAX {
+                near[n] = i;
+                n += 1;
+            }
+        }
+        if n == 2 {
+            let (va, vb) = (self.tris.verts[ia], self.tris.verts[ib]);
+            let mut shared = va.iter().filter(|v| vb.contains(v));
+            if let (Some(&v), None) = (shared.next(), shared.next()) {
+                for (t, tv) in self.tris.verts.iter().enumerate() {
+                    if n == HINT_FAN {
+                        break;
+                    }
+                    if tv.contains(&v) && t != ia && t != ib {
+                        near[n] = t;
+                        n += 1;
+                    }
+                }
+            }
+        }
         let mut best =
-            pick(None, self.tris, find_primary_hinted(x, normals, self.tris, st.mode, st.dmax, true, false, &hint(self.tris), scratch));
+            pick(None, self.tris, find_primary_hinted(x, normals, self.tris, st.mode, st.dmax, true, false, &near[..n], scratch));
         // Outside the neighbourhood, the same reach as a vertex's: a face holding a smaller |d|
         // lies within |d| of x. First the faces around the checked triangles, then, if the
         // reach leaves their box, a grid query of this point's own.
         let outer = self.outer.get_or_init(|| st.outer_faces(self.c, self.tris, self.faces, self.maps, self.extras));
-        let mut reads = self.reads.borrow_mut();
-        let mut search = |best: Option<Map>, far: &Tris, scratch: &mut Scratch| -> Option<Map> {
+        let search = |best: Option<Map>, far: &Tris, scratch: &mut Scratch| -> Option<Map> {
             let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
-            let before = reads.len();
-            let bounds = scratch.fill_bounds(x, far);
-            reads.extend(bounds.iter().zip(&far.ids).filter(|(&b, _)| b <= reach).map(|(_, &f)| f));
-            if reads.len() == before {
+            scratch.fill_bounds(x, far);
+            if scratch.record_within(far, reach) == 0 {
                 // No face there is within reach: the search would find nothing.
                 return best;
             }

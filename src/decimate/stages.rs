@@ -18,22 +18,26 @@ pub enum Stage {
     /// Faces outside the neighbourhood that may hold a smaller |d|, vertices whose primary
     /// moves onto the region, (strict) second solutions on the ring.
     Reach,
-    /// Continuity of the dense edges that pass near the region, then orientation and
-    /// continuity of the dense triangles around changed maps.
-    Check,
+    /// Continuity: every dense edge of the triangles around changed maps and of the vertices
+    /// whose edges pass near the region, walked once (with the elements where the last try
+    /// failed, tested first).
+    Continuity,
+    /// Orientation: every such triangle's image loop.
+    Orientation,
 }
 
-const STAGES: [(Stage, &str); 4] = [
+const STAGES: [(Stage, &str); 5] = [
     (Stage::Neighbourhood, "neighbourhood"),
     (Stage::Primaries, "primaries"),
     (Stage::Reach, "reach"),
-    (Stage::Check, "check"),
+    (Stage::Continuity, "continuity"),
+    (Stage::Orientation, "orientation"),
 ];
 
 /// Nanoseconds per stage, plus the CPU time of whole candidates by outcome.
 #[derive(Default)]
 pub struct StageClock {
-    ns: [AtomicU64; 4],
+    ns: [AtomicU64; 5],
     accepted_ns: AtomicU64,
     rejected_ns: AtomicU64,
     placements: AtomicU64,
@@ -50,6 +54,11 @@ impl StageClock {
         let now = Instant::now();
         self.ns[stage as usize].fetch_add((now - since).as_nanos() as u64, Ordering::Relaxed);
         now
+    }
+
+    /// Adds `ns` nanoseconds (measured by the stage itself, summed over its threads) to `stage`.
+    pub fn add(&self, stage: Stage, ns: u64) {
+        self.ns[stage as usize].fetch_add(ns, Ordering::Relaxed);
     }
 
     /// Adds a whole candidate's time (all its placements) by outcome.
@@ -100,7 +109,10 @@ impl StageClock {
 pub struct StageSummary {
     /// Per stage of a placement's test, in the order they run.
     pub stages_cpu_s: Vec<(String, f64)>,
-    /// Whole candidates that passed (all placements tried until one passed).
+    /// Whole candidates that passed (all placements tried until one passed). Measured from a
+    /// candidate's start to its end on its thread: while its check waits for its chunks on
+    /// other threads, that thread may run another candidate's work, so with more than one
+    /// thread these two are upper bounds.
     pub accepted_cpu_s: f64,
     /// Whole candidates that failed every placement.
     pub rejected_cpu_s: f64,

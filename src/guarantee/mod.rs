@@ -9,5 +9,5 @@ pub mod check;
 pub mod chord;
 pub mod primary;
 
-pub use check::{check_face, check_faces, edge_image, loop_positive, CheckScratch, CheckStats, FailAt, FaceCheck, MapContext, Sample};
+pub use check::{check_face, check_faces, CheckOut, edge_image, loop_positive, CheckScratch, CheckStats, FailAt, FaceCheck, MapContext, Sample};
 pub use primary::*;

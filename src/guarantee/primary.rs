@@ -187,6 +187,9 @@ pub struct Scratch {
     bounds: Vec<f64>,
     order: Vec<(f64, u32)>,
     found: Vec<DVec3>,
+    /// Faces a caller's searches read beyond its own set (the decimator's footprint of a
+    /// candidate, [`Scratch::record_within`]); left to the caller to take.
+    pub reads: Vec<u32>,
 }
 
 impl Scratch {
@@ -196,6 +199,14 @@ impl Scratch {
         self.bounds.clear();
         self.bounds.extend((0..tris.len()).map(|t| sphere_lower_bound(x, tris.sphere[t].0, tris.sphere[t].1)));
         &self.bounds
+    }
+
+    /// After [`Scratch::fill_bounds`] over `tris`: records in [`Scratch::reads`] the faces whose
+    /// bound is within `reach`, and returns how many there were.
+    pub fn record_within(&mut self, tris: &Tris, reach: f64) -> usize {
+        let before = self.reads.len();
+        self.reads.extend(self.bounds.iter().zip(&tris.ids).filter(|(&b, _)| b <= reach).map(|(_, &f)| f));
+        self.reads.len() - before
     }
 }
 
