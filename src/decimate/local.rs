@@ -9,6 +9,7 @@
 //!   gain a solution there ([`State::moved_primaries`]).
 
 use crate::decimate::{Candidate, State};
+use crate::guarantee::chunks::{chunk_count, run_to_first_failure};
 use crate::eval::{check_faces, find_primary, CheckOut, find_primary_bounded, find_primary_hinted, Accepted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Outcome, Reject, Rejected, Scratch, Tris};
 use crate::geometry::{face_cross, vertex_direction};
 use crate::decimate::stages::Stage;
@@ -98,38 +99,73 @@ impl State {
         let nb = self.build_neighbourhood(c, p, tris);
         let t = self.clock.lap(Stage::Neighbourhood, t);
         let (new_dirs, n_region) = nb?;
-        let mut normals = Vec::new();
-        let maps = self.solve_region_vertices(c, tris, |i, x, pinched| {
-            self.dense.vertex_normals(c.dense[i], &mut normals);
-            find_primary(x, &normals, tris, self.mode, self.dmax, !pinched, self.strict && !pinched, scratch)
-        });
+        let (maps, _) = self.solve_region_vertices(
+            c,
+            tris,
+            || (Scratch::default(), Vec::new()),
+            |(scratch, normals), i, x, pinched| {
+                self.dense.vertex_normals(c.dense[i], normals);
+                find_primary(x, normals, tris, self.mode, self.dmax, !pinched, self.strict && !pinched, scratch)
+            },
+        );
         self.clock.lap(Stage::Primaries, t);
         let maps = maps?;
         self.finish_placement(c, p, new_dirs, n_region, tris, maps, scratch, first)
     }
 
     /// The primary solutions of the region's dense vertices over the neighbourhood, in
-    /// `c.order` (neighbours fail together), by `solve(index into c.dense, position, pinched)`;
-    /// fails at the first vertex without one (or, strict, with two).
-    pub(crate) fn solve_region_vertices(
+    /// `c.order` (neighbours fail together), by `solve(state, index into c.dense, position,
+    /// pinched)`; fails at the first vertex without one (or, strict, with two). In contiguous
+    /// chunks of `c.order` over the threads, each with its own `init()` state (returned, for
+    /// counters); the failure reported is the first in `c.order` whatever the thread count.
+    pub(crate) fn solve_region_vertices<S: Send>(
         &self,
         c: &Candidate,
         tris: &Tris,
-        mut solve: impl FnMut(usize, DVec3, bool) -> Found,
-    ) -> Result<Vec<Map>, Reject> {
+        init: impl Fn() -> S + Sync,
+        solve: impl Fn(&mut S, usize, DVec3, bool) -> Found + Sync,
+    ) -> (Result<Vec<Map>, Reject>, Vec<S>) {
+        let chunks = chunk_count(c.order.len(), PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD);
+        let parts = run_to_first_failure(&c.order, chunks, |chunk, stop| {
+            let mut state = init();
+            let mut out = Vec::with_capacity(chunk.len());
+            for &i in chunk {
+                if stop() {
+                    break;
+                }
+                let v = c.dense[i as usize];
+                let x = self.dense.pos[v as usize];
+                let pinched = self.dense.pinched[v as usize];
+                let m = match solve(&mut state, i as usize, x, pinched) {
+                    Found::Hit(t, h) => Map { face: tris.ids[t], bary: h.bary, d: h.d },
+                    Found::Ambiguous => return Err((Reject::Ambiguous, state)),
+                    Found::None if pinched => self.nearest_fallback(x, tris),
+                    Found::None => return Err((Reject::Unmapped, state)),
+                };
+                out.push((i, m));
+            }
+            Ok((out, state))
+        });
         let mut maps = vec![Map { face: INVALID, bary: [0.0; 3], d: 0.0 }; c.dense.len()];
-        for &i in &c.order {
-            let v = c.dense[i as usize];
-            let x = self.dense.pos[v as usize];
-            let pinched = self.dense.pinched[v as usize];
-            match solve(i as usize, x, pinched) {
-                Found::Hit(t, h) => maps[i as usize] = Map { face: tris.ids[t], bary: h.bary, d: h.d },
-                Found::Ambiguous => return Err(Reject::Ambiguous),
-                Found::None if pinched => maps[i as usize] = self.nearest_fallback(x, tris),
-                Found::None => return Err(Reject::Unmapped),
+        let mut states = Vec::with_capacity(parts.len());
+        let mut verdict = Ok(());
+        for part in parts {
+            match part {
+                Ok((solved, state)) => {
+                    for (i, m) in solved {
+                        maps[i as usize] = m;
+                    }
+                    states.push(state);
+                }
+                Err((reason, state)) => {
+                    states.push(state);
+                    if verdict.is_ok() {
+                        verdict = Err(reason);
+                    }
+                }
             }
         }
-        Ok(maps)
+        (verdict.map(|_| maps), states)
     }
 
     /// The rest of a placement's test once the region's vertices are solved: faces outside
@@ -438,6 +474,14 @@ const FAIL_HINTS: usize = 4;
 /// Why: a midpoint's |d| rarely exceeds its ends' by much; twice covers the cases measured, and
 /// a larger one falls back to a query of its own (never a wrong answer, only a slower one).
 const OUTER_REACH: f64 = 2.0;
+
+/// Fewest region vertices in one parallel chunk of [`State::solve_region_vertices`].
+/// Why: a primary search costs a few µs; 64 of them dwarf a chunk's scratch and its join.
+const PRIMARY_CHUNK_MIN: usize = 64;
+
+/// Most chunks per thread of [`State::solve_region_vertices`].
+/// Why: as the check's: a round's last candidate can use the idle threads.
+const PRIMARY_CHUNKS_PER_THREAD: usize = 4;
 
 /// Most faces a midpoint's search visits first (its ends' faces and the fan between them).
 /// Why: the valence cap is 12, so a fan has at most 12 faces beside the two ends'.

@@ -423,16 +423,21 @@ impl Evaluator for GpuEvaluator {
                         Ok(b) => b,
                         Err(r) => return (Err(r), 0),
                     };
-                    let (mut scratch, mut normals) = (Scratch::default(), Vec::new());
-                    let mut disagreements = 0;
                     let mine = &answers[prep.first_query..prep.first_query + c.dense.len()];
-                    let solved = state.solve_region_vertices(c, &tris, |i, x, pinched| {
-                        state.dense.vertex_normals(c.dense[i], &mut normals);
-                        let (check4, strict) = (!pinched, state.strict && !pinched);
-                        settle(&mine[i], x, &normals, &tris, state.mode, state.dmax, check4, &mut disagreements, || {
-                            find_primary(x, &normals, &tris, state.mode, state.dmax, check4, strict, &mut scratch)
-                        })
-                    });
+                    let (solved, states) = state.solve_region_vertices(
+                        c,
+                        &tris,
+                        || (Scratch::default(), Vec::new(), 0u64),
+                        |(scratch, normals, disagreements), i, x, pinched| {
+                            state.dense.vertex_normals(c.dense[i], normals);
+                            let (check4, strict) = (!pinched, state.strict && !pinched);
+                            settle(&mine[i], x, normals, &tris, state.mode, state.dmax, check4, disagreements, || {
+                                find_primary(x, normals, &tris, state.mode, state.dmax, check4, strict, scratch)
+                            })
+                        },
+                    );
+                    let disagreements: u64 = states.iter().map(|s| s.2).sum();
+                    let mut scratch = Scratch::default();
                     let r = solved
                         .and_then(|maps| state.finish_placement(c, prep.position, new_dirs, n_region, &tris, maps, &mut scratch, first))
                         .map(|acc| Accepted { placement: pi, ..acc });

@@ -1085,7 +1085,6 @@ pub fn check_faces<C: MapContext + Sync>(
     out.reads.append(&mut sc.solve.reads);
     out.continuity_ns += t.elapsed().as_nanos() as u64;
     r?;
-    let threads = rayon::current_num_threads();
     // Continuity: every edge the walk would visit, once — the listed edges and the edges of
     // the triangles that are not skipped (exempt or unmapped) — in (lower, higher) order.
     let judged = |f: u32| {
@@ -1113,7 +1112,7 @@ pub fn check_faces<C: MapContext + Sync>(
         }
         same
     });
-    let chunks = |n: usize| if threads <= 1 { 1 } else { (n / CHECK_CHUNK_MIN).clamp(1, CHECK_CHUNKS_PER_THREAD * threads) };
+    let chunks = |n: usize| super::chunks::chunk_count(n, CHECK_CHUNK_MIN, CHECK_CHUNKS_PER_THREAD);
     let tear_at = |e: (u32, u32)| -> FailAt {
         if edges.binary_search(&e).is_ok() {
             return FailAt::Edge(e.0, e.1);
@@ -1125,8 +1124,11 @@ pub fn check_faces<C: MapContext + Sync>(
         });
         f.map_or(FailAt::Edge(e.0, e.1), FailAt::Face)
     };
-    let (walked, mut rd) = in_chunks(&walk, chunks(walk.len()), |chunk, out: &mut EdgeTable, sc: &mut CheckScratch| {
+    let (walked, mut rd) = in_chunks(&walk, chunks(walk.len()), |chunk, out: &mut EdgeTable, sc: &mut CheckScratch, stop| {
         for &((a, b), read) in chunk {
+            if stop() {
+                break;
+            }
             let (Some(ma), Some(mb)) = (ctx.map_of(a), ctx.map_of(b)) else { continue };
             let j = walk_edge(ctx, dense, (a, ma), (b, mb), 0, sc);
             if j > 0.0 {
@@ -1142,62 +1144,46 @@ pub fn check_faces<C: MapContext + Sync>(
     out.continuity_ns += rd.1;
     let table = std::sync::Arc::new(walked?);
     // Orientation: every triangle's loop, its edges read from the table.
-    let (oriented, mut rd) = in_chunks(faces, chunks(faces.len()), |chunk, _: &mut EdgeTable, sc: &mut CheckScratch| {
+    let (oriented, mut rd) = in_chunks(faces, chunks(faces.len()), |chunk, _: &mut EdgeTable, sc: &mut CheckScratch, stop| {
         sc.shared = Some(table.clone());
         let mut stats = CheckStats::default();
-        chunk.iter().try_for_each(|&f| check(FailAt::Face(f), sc, &mut stats))
+        chunk.iter().take_while(|_| !stop()).try_for_each(|&f| check(FailAt::Face(f), sc, &mut stats))
     });
     out.reads.append(&mut rd.0);
     out.orientation_ns += rd.1;
     oriented.map(|_| ())
 }
 
-/// Runs `work` over `items` in `chunks` contiguous chunks on the threads, each with its own
-/// scratch and edge table; the tables are merged in chunk order. The result is the sequential
-/// one: the first failure of the first chunk that fails (a chunk after a failed one may stop
-/// early, it is not needed). Also returns every chunk's [`Scratch::reads`] and the nanoseconds
-/// the chunks ran, summed.
+/// Runs `work` over `items` in `chunks` contiguous chunks on the threads
+/// ([`super::chunks::run_to_first_failure`]), each with its own scratch and edge table; the
+/// tables are merged in chunk order. The result is the sequential one: the first failure in
+/// item order. Also returns the chunks' [`Scratch::reads`] and the nanoseconds they ran, summed.
 #[allow(clippy::type_complexity)]
 fn in_chunks<T: Sync, E: Send>(
     items: &[T],
     chunks: usize,
-    work: impl Fn(&[T], &mut EdgeTable, &mut CheckScratch) -> Result<(), E> + Sync,
+    work: impl Fn(&[T], &mut EdgeTable, &mut CheckScratch, &dyn Fn() -> bool) -> Result<(), E> + Sync,
 ) -> (Result<EdgeTable, E>, (Vec<u32>, u64)) {
-    use rayon::prelude::*;
-    use std::sync::atomic::{AtomicUsize, Ordering};
-    let run = |chunk: &[T]| {
+    let parts = super::chunks::run_to_first_failure(items, chunks, |chunk, stop| {
         let t = std::time::Instant::now();
         let mut sc = CheckScratch::default();
         let mut out = EdgeTable::default();
-        let r = work(chunk, &mut out, &mut sc);
-        (r.map(|_| out), (std::mem::take(&mut sc.solve.reads), t.elapsed().as_nanos() as u64))
-    };
-    if chunks <= 1 || items.len() < 2 {
-        return run(items);
-    }
-    let failed = AtomicUsize::new(usize::MAX);
-    let size = items.len().div_ceil(chunks);
-    let parts: Vec<(Result<EdgeTable, E>, (Vec<u32>, u64))> = items
-        .par_chunks(size)
-        .enumerate()
-        .map(|(ci, chunk)| {
-            if failed.load(Ordering::Relaxed) < ci {
-                return (Ok(EdgeTable::default()), (Vec::new(), 0));
-            }
-            let r = run(chunk);
-            if r.0.is_err() {
-                failed.fetch_min(ci, Ordering::Relaxed);
-            }
-            r
-        })
-        .collect();
+        let r = work(chunk, &mut out, &mut sc, stop);
+        let spent = (std::mem::take(&mut sc.solve.reads), t.elapsed().as_nanos() as u64);
+        match r {
+            Ok(()) => Ok((out, spent)),
+            Err(e) => Err((e, spent)),
+        }
+    });
     let (mut reads, mut ns) = (Vec::new(), 0);
-    for (_, (rd, n)) in &parts {
-        reads.extend_from_slice(rd);
-        ns += n;
-    }
     let mut table = Ok(EdgeTable::default());
-    for (r, _) in parts {
+    for part in parts {
+        let (r, (rd, n)) = match part {
+            Ok((part, spent)) => (Ok(part), spent),
+            Err((e, spent)) => (Err(e), spent),
+        };
+        reads.extend_from_slice(&rd);
+        ns += n;
         match (&mut table, r) {
             (Ok(t), Ok(part)) => {
                 let base = t.arena.len() as u32;

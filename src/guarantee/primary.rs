@@ -8,6 +8,8 @@ use crate::geometry::{
     ShellHit,
 };
 use glam::DVec3;
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
 
 /// Two solutions closer than this (relative to dmax) are the same point found by two
 /// triangles that share an edge or a vertex.
@@ -181,11 +183,19 @@ pub fn direction_at(tris: &Tris, t: usize, hit: &ShellHit, mode: NormalMode) -> 
     }
 }
 
+/// An integer key that orders f64 values as `f64::total_cmp` does.
+#[inline]
+fn total_order_key(x: f64) -> i64 {
+    let bits = x.to_bits() as i64;
+    bits ^ ((((bits >> 63) as u64) >> 1) as i64)
+}
+
 /// Reusable per-thread scratch space.
 #[derive(Default)]
 pub struct Scratch {
     bounds: Vec<f64>,
-    order: Vec<(f64, u32)>,
+    /// Triangles within reach by (bound, index), smallest first.
+    order: BinaryHeap<Reverse<(i64, u32)>>,
     found: Vec<DVec3>,
     /// Faces a caller's searches read beyond its own set (the decimator's footprint of a
     /// candidate, [`Scratch::record_within`]); left to the caller to take.
@@ -317,11 +327,11 @@ pub fn find_primary_bounded(
         Some((_, h)) if !strict => dmax.min(h.d.abs() + tie),
         _ => dmax,
     };
+    // A heap, not a sort: the search mostly stops after a few triangles.
     scratch.order.clear();
-    scratch.order.extend(scratch.bounds.iter().enumerate().filter(|(_, &b)| b <= reach).map(|(t, &b)| (b, t as u32)));
-    scratch.order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    for k in 0..scratch.order.len() {
-        let (tb, ti) = scratch.order[k];
+    scratch.order.extend(scratch.bounds.iter().enumerate().filter(|(_, &b)| b <= reach).map(|(t, &b)| Reverse((total_order_key(b), t as u32))));
+    while let Some(Reverse((_, ti))) = scratch.order.pop() {
+        let tb = scratch.bounds[ti as usize];
         if !strict && best.is_some_and(|(_, h)| tb > h.d.abs() + tie) {
             break;
         }
@@ -361,3 +371,20 @@ pub struct FaceInfo {
     pub dir: [DVec3; 3],
 }
 
+
+#[cfg(test)]
+mod tests {
+    use super::total_order_key;
+
+    #[test]
+    fn the_search_order_key_orders_as_total_cmp() {
+        // The search visits triangles by (bound, index); the heap's integer key must give the
+        // order the sort by `f64::total_cmp` gave, signed zeros and infinities included.
+        let xs = [0.0, -0.0, 1e-300, 5e-324, 1.0, 0.5, 1.0 + f64::EPSILON, f64::INFINITY, -1.0, f64::MAX, 3.25e-7];
+        for &a in &xs {
+            for &b in &xs {
+                assert_eq!(total_order_key(a).cmp(&total_order_key(b)), a.total_cmp(&b), "{a:e} vs {b:e}");
+            }
+        }
+    }
+}

@@ -1,0 +1,92 @@
+//! How a check splits its items over the threads without changing what it reports: contiguous
+//! chunks, and the first failure in item order whatever the thread count.
+//!
+//! ```text
+//!   items:   [ chunk 0 | chunk 1 | chunk 2 ✗ | chunk 3 ✗ | chunk 4 ]
+//!   runs:      whole     whole     to its ✗    may stop    may not run
+//!   result:  chunk 2's first failure — the one a single thread, walking in order, finds
+//! ```
+
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// How many chunks `n` items get: one on one thread; else one per `min` items, at most
+/// `per_thread` per thread.
+pub fn chunk_count(n: usize, min: usize, per_thread: usize) -> usize {
+    let threads = rayon::current_num_threads();
+    if threads <= 1 {
+        1
+    } else {
+        (n / min.max(1)).clamp(1, per_thread.max(1) * threads)
+    }
+}
+
+/// Runs `work(chunk, stop)` on `chunks` contiguous chunks of `items` over the threads and
+/// returns the results of the chunks that ran, in item order. Every chunk before the first
+/// failing one runs whole; a chunk after it may stop early (`stop()` turns true) or not run at
+/// all (then it is left out), since its result is not needed. So the first `Err` returned is
+/// the first failure of a walk in item order. With `chunks` ≤ 1 it is one call on this thread.
+pub fn run_to_first_failure<T: Sync, R: Send, E: Send>(
+    items: &[T],
+    chunks: usize,
+    work: impl Fn(&[T], &dyn Fn() -> bool) -> Result<R, E> + Sync,
+) -> Vec<Result<R, E>> {
+    if chunks <= 1 || items.len() < 2 {
+        return vec![work(items, &|| false)];
+    }
+    let failed = AtomicUsize::new(usize::MAX);
+    let size = items.len().div_ceil(chunks);
+    let parts: Vec<Option<Result<R, E>>> = items
+        .par_chunks(size)
+        .enumerate()
+        .map(|(ci, chunk)| {
+            let stop = || failed.load(Ordering::Relaxed) < ci;
+            if stop() {
+                return None;
+            }
+            let r = work(chunk, &stop);
+            if r.is_err() {
+                failed.fetch_min(ci, Ordering::Relaxed);
+            }
+            Some(r)
+        })
+        .collect();
+    parts.into_iter().flatten().collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_first_failure_is_the_one_in_item_order() {
+        // Items fail where they are multiples of 7 from 300 on; every thread count and chunk
+        // count must report 301 (the first such item), and pass the items before it whole.
+        let items: Vec<u32> = (0..1000).collect();
+        for threads in [1, 2, 5] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            for chunks in [1, 2, 7, 64] {
+                let parts = pool.install(|| {
+                    run_to_first_failure(&items, chunks, |chunk, stop| {
+                        let mut seen = 0;
+                        for &x in chunk {
+                            if stop() {
+                                break;
+                            }
+                            if x >= 300 && x % 7 == 0 {
+                                return Err(x);
+                            }
+                            seen += 1;
+                        }
+                        Ok(seen)
+                    })
+                });
+                let first = parts.iter().position(|r| r.is_err()).expect("a failure");
+                assert_eq!(parts[first], Err(301), "{threads} threads, {chunks} chunks");
+                let before: u32 = parts[..first].iter().map(|r| *r.as_ref().unwrap()).sum();
+                let size = 1000usize.div_ceil(chunks.max(1)) as u32;
+                assert_eq!(before, if chunks <= 1 { 0 } else { 301 / size * size }, "the chunks before run whole");
+            }
+        }
+    }
+}
