@@ -858,15 +858,7 @@ fn face_loop<C: MapContext>(
         let cached = if min_depth == 0 { sc.cached_edge((lo, hi)) } else { None };
         let jump = match cached {
             Some(j) => j,
-            None => {
-                let j = walk_edge(ctx, dense, (lo, m[klo]), (hi, m[khi]), min_depth, sc);
-                if min_depth == 0 {
-                    if let Some(c) = sc.cache.as_mut() {
-                        c.insert((lo, hi), j, &sc.edge);
-                    }
-                }
-                j
-            }
+            None => walk_edge(ctx, dense, (lo, m[klo]), (hi, m[khi]), min_depth, sc),
         };
         if jump > 0.0 {
             torn = true;
@@ -939,11 +931,9 @@ impl EdgeTable {
 #[derive(Default)]
 pub struct CheckScratch {
     pub solve: Scratch,
-    /// Edge images already walked in this check (used by [`check_faces`], where neighbouring
-    /// triangles share edges): the walks of its continuity stage, shared by the threads, then
-    /// this scratch's own.
+    /// Edge images already walked: [`check_faces`]'s continuity stage, read by its orientation
+    /// stage on every thread.
     shared: Option<std::sync::Arc<EdgeTable>>,
-    cache: Option<EdgeTable>,
     normals: Vec<DVec3>,
     edge: Vec<Sample>,
     lp: Vec<Sample>,
@@ -952,12 +942,20 @@ pub struct CheckScratch {
 impl CheckScratch {
     /// The cached image of edge `key` into `self.edge`, and its jump.
     fn cached_edge(&mut self, key: (u32, u32)) -> Option<f64> {
-        let CheckScratch { shared, cache, edge, .. } = self;
-        let (j, samples) = shared.as_deref().and_then(|t| t.get(key)).or_else(|| cache.as_ref().and_then(|t| t.get(key)))?;
+        let CheckScratch { shared, edge, .. } = self;
+        let (j, samples) = shared.as_deref()?.get(key)?;
         edge.clear();
         edge.extend_from_slice(samples);
         Some(j)
     }
+}
+
+/// The maps of dense triangle `f`'s vertices when the checks judge it: `None` where one is
+/// unmapped or pinched, or one of its edges is exempt (then it is skipped).
+fn judged_maps<C: MapContext>(ctx: &C, dense: &DenseData, f: u32) -> Option<[Map; 3]> {
+    let fv = dense.faces[f as usize];
+    let m = [ctx.map_of(fv[0])?, ctx.map_of(fv[1])?, ctx.map_of(fv[2])?];
+    (!dense.has_exempt_edge(f)).then_some(m)
 }
 
 /// Checks dense triangle `f`: continuity of its three edges, then the orientation of its image
@@ -972,14 +970,9 @@ pub fn check_face<C: MapContext>(
     stats: &mut CheckStats,
 ) -> FaceCheck {
     let fv = dense.faces[f as usize];
-    let maps = [ctx.map_of(fv[0]), ctx.map_of(fv[1]), ctx.map_of(fv[2])];
-    let [Some(m0), Some(m1), Some(m2)] = maps else {
+    let Some(m) = judged_maps(ctx, dense, f) else {
         return FaceCheck::Skipped;
     };
-    if dense.has_exempt_edge(f) {
-        return FaceCheck::Skipped;
-    }
-    let m = [m0, m1, m2];
     if !face_loop(ctx, dense, fv, m, 0, sc, stats) {
         return FaceCheck::Torn;
     }
@@ -1076,8 +1069,7 @@ pub fn check_faces<C: MapContext + Sync>(
             }
         }
     };
-    let new_scratch = || CheckScratch { cache: Some(Default::default()), ..Default::default() };
-    let mut sc = new_scratch();
+    let mut sc = CheckScratch::default();
     let mut stats = CheckStats::default();
     // Where an earlier try failed: alone, first (they mostly fail again).
     let t = std::time::Instant::now();
@@ -1087,10 +1079,7 @@ pub fn check_faces<C: MapContext + Sync>(
     r?;
     // Continuity: every edge the walk would visit, once — the listed edges and the edges of
     // the triangles that are not skipped (exempt or unmapped) — in (lower, higher) order.
-    let judged = |f: u32| {
-        let fv = dense.faces[f as usize];
-        fv.iter().all(|&v| ctx.map_of(v).is_some()) && !dense.has_exempt_edge(f)
-    };
+    let judged = |f: u32| judged_maps(ctx, dense, f).is_some();
     // Each with whether a triangle reads its walk (only those are kept).
     let mut walk: Vec<((u32, u32), bool)> = edges
         .iter()
