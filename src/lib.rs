@@ -12,18 +12,21 @@
 //!   orientation in intrinsic charts);
 //! - [`decimate`]: queue, association, rounds, commit; the local test of one candidate
 //!   ([`decimate::local`]), the re-check of its own state ([`decimate::recheck`]), the grids of
-//!   its searches ([`decimate::grid`]) and the stage clocks ([`decimate::stages`]);
-//! - [`eval`]: the [`eval::Evaluator`] trait and the CPU evaluator;
+//!   its searches ([`decimate::grid`]), the stage clocks ([`decimate::stages`]) and the
+//!   interface its rounds call ([`decimate::outcome`]: [`decimate::Evaluator`], outcomes);
+//! - [`eval`]: the CPU evaluator (the GPU one is [`gpu::eval`]);
 //! - [`gpu`]: the only place that calls wgpu (device, shell kernel context, buffers), the GPU
 //!   evaluator and projection ([`gpu::eval`]) and the headless render ([`gpu::render`]);
 //! - [`validate`]: the independent, global check of a (scan, base) pair;
 //! - [`maps`]: atlas and fold image, bake, `BASE.map`, glTF export, reconstruction, plot;
 //! - [`settings`]: the settings a base records (BASE.obj, BASE.map) and their resolution
 //!   against flags;
+//! - [`error`]: the GPU error every layer can carry without depending on [`gpu`];
 //! - [`app`]: one job per command (`decimate`, `validate`, `bake`, …, `bench`) and its report.
 
 pub mod app;
 pub mod decimate;
+pub mod error;
 pub mod eval;
 pub mod geometry;
 pub mod gpu;
@@ -44,7 +47,7 @@ pub enum Error {
     #[error("cannot write {path}: {msg}")]
     Output { path: String, msg: String },
     #[error(transparent)]
-    Gpu(#[from] gpu::GpuError),
+    Gpu(#[from] error::GpuError),
 }
 
 impl Error {

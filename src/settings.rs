@@ -2,7 +2,7 @@
 //! `# dispdec-settings {json}` comment line) and in BASE.map, and used by `validate`, `bake` and
 //! `reconstruct` unless a flag overrides them.
 
-use crate::eval::NormalMode;
+use crate::guarantee::NormalMode;
 use crate::mesh::repair::Preparation;
 
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]

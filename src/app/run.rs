@@ -48,15 +48,15 @@ pub enum Backend {
 /// `auto` takes a hardware adapter only: on a software one (lavapipe, whose "GPU" is these same
 /// CPU cores) the CPU evaluator is faster; `--backend gpu` forces any adapter.
 pub fn open_backend(backend: Backend, dense: &crate::mesh::DenseData) -> Result<(Option<GpuEvaluator>, Option<String>), Error> {
-    let open = || -> Result<GpuEvaluator, crate::gpu::GpuError> {
-        let gpu = crate::gpu::Gpu::new(wgpu::Backends::PRIMARY)?;
+    let open = || -> Result<GpuEvaluator, crate::error::GpuError> {
+        let gpu = crate::gpu::Gpu::open_primary()?;
         GpuEvaluator::new(gpu, dense)
     };
     let cpu = |why: String| Ok((None, Some(format!("--backend auto: using the CPU: {why}"))));
     match backend {
         Backend::Cpu => Ok((None, None)),
         Backend::Gpu => Ok((Some(open()?), None)),
-        Backend::Auto => match crate::gpu::Gpu::hardware_adapter_info(wgpu::Backends::PRIMARY) {
+        Backend::Auto => match crate::gpu::Gpu::primary_hardware_adapter() {
             Err(e) => cpu(e.to_string()),
             Ok(None) => cpu("no hardware adapter; software adapters (lavapipe) run on these same cores and are slower than the CPU evaluator (--backend gpu forces one)".into()),
             Ok(Some(_)) => match open() {
@@ -836,7 +836,7 @@ pub fn render(meshes: &[PathBuf], out: &std::path::Path, view: crate::gpu::rende
             loaded.push((b.positions, b.faces));
         }
     }
-    let gpu = crate::gpu::Gpu::new(wgpu::Backends::PRIMARY)?;
+    let gpu = crate::gpu::Gpu::open_primary()?;
     let (w, h, rgba) = crate::gpu::render::render(&gpu, &loaded, &view)?;
     write_atomic(out, &crate::gpu::render::png_rgba(w, h, &rgba))?;
     Ok(gpu.describe())

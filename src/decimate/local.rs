@@ -10,7 +10,8 @@
 
 use crate::decimate::{Candidate, State};
 use crate::guarantee::chunks::{chunk_count, run_to_first_failure};
-use crate::eval::{check_faces, find_primary, CheckOut, find_primary_bounded, find_primary_hinted, Accepted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Outcome, Reject, Rejected, Scratch, Tris};
+use super::outcome::{Accepted, Outcome, Rejected};
+use crate::guarantee::{check_faces, find_primary, CheckOut, find_primary_bounded, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
 use crate::geometry::{face_cross, vertex_direction};
 use crate::decimate::stages::Stage;
 use std::time::Instant;
@@ -296,7 +297,7 @@ impl State {
     fn strict_ring(&self, c: &Candidate, tris: &Tris, n_region: usize, extras: &[(u32, Map)], scratch: &mut Scratch) -> Result<(), Reject> {
         let dense = &self.dense;
         let mut normals = Vec::new();
-        let tie = crate::eval::SAME_SOLUTION_REL * self.dmax;
+        let tie = crate::guarantee::SAME_SOLUTION_REL * self.dmax;
         for &(v, _) in extras {
             dense.vertex_normals(v, &mut normals);
             if find_primary(dense.pos[v as usize], &normals, tris, self.mode, self.dmax, true, true, scratch) == Found::Ambiguous {
@@ -317,8 +318,8 @@ impl State {
                     if !tris.verts[t].iter().any(|w| fv.contains(w)) {
                         continue;
                     }
-                    for h in crate::eval::solve_tri(x, tris, t, self.mode, self.dmax).iter() {
-                        if !crate::geometry::condition4(crate::eval::direction_at(tris, t, &h, self.mode), normals.iter().copied()) {
+                    for h in crate::guarantee::solve_tri(x, tris, t, self.mode, self.dmax).iter() {
+                        if !crate::geometry::condition4(crate::guarantee::direction_at(tris, t, &h, self.mode), normals.iter().copied()) {
                             continue;
                         }
                         let q = crate::geometry::interpolate_direction(&tris.pos[t], &h.bary);
@@ -374,7 +375,7 @@ impl State {
         reads.extend_from_slice(&far.ids);
         let dense = &self.dense;
         let mut normals = Vec::new();
-        let tie = crate::eval::SAME_SOLUTION_REL * self.dmax;
+        let tie = crate::guarantee::SAME_SOLUTION_REL * self.dmax;
         for (i, &v) in c.dense.iter().enumerate() {
             let cur = maps[i];
             if self.dense.pinched[v as usize] || cur.d == 0.0 {
@@ -562,7 +563,7 @@ impl MapContext for CandidateContext<'_> {
     }
     fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map> {
         let st = self.st;
-        let tie = crate::eval::SAME_SOLUTION_REL * st.dmax;
+        let tie = crate::guarantee::SAME_SOLUTION_REL * st.dmax;
         // Smallest |d|, ties to the lowest face id: the rule of one search over the union.
         let pick = |best: Option<Map>, far: &Tris, found: Found| -> Option<Map> {
             let Found::Hit(t, h) = found else { return best };

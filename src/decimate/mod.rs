@@ -6,10 +6,12 @@
 
 pub mod grid;
 pub mod local;
+pub mod outcome;
 pub mod recheck;
 pub mod stages;
 
-use crate::eval::{Evaluator, FaceInfo, FailAt, Map, NormalMode, Outcome, Reject, Tris};
+pub use outcome::{Accepted, Evaluator, Outcome, Rejected};
+use crate::guarantee::{FaceInfo, FailAt, Map, NormalMode, Reject, Tris};
 use crate::geometry::{face_cross, vertex_direction};
 use crate::decimate::grid::{DenseGrid, FaceGrid};
 use crate::mesh::{DenseData, DenseMesh};
@@ -541,7 +543,7 @@ impl State {
     }
 
     /// Runs rounds until the queue is empty or the target is reached.
-    pub fn run(&mut self, evaluator: &dyn Evaluator, opts: &Options, mut progress: impl FnMut(usize)) -> Result<(), crate::gpu::GpuError> {
+    pub fn run(&mut self, evaluator: &dyn Evaluator, opts: &Options, mut progress: impl FnMut(usize)) -> Result<(), crate::error::GpuError> {
         let mut marks = vec![0u32; self.pos.len()];
         let mut vmark = vec![0u32; self.dense.pos.len()];
         let mut fmark = vec![0u32; self.topo.num_faces_total()];
@@ -748,7 +750,7 @@ mod tests {
                 let failed: Vec<(String, u64)> = s.failed_placements.iter().map(|r| (r.0.clone(), r.1)).collect();
                 let assoc: Vec<(u32, u64)> = st.assoc.iter().map(|m| (m.face, m.d.to_bits())).collect();
                 // Where each parked candidate's tries failed, as they will be tried next.
-                let mut memo: Vec<(u64, Vec<crate::eval::FailAt>)> = st.fail_memo.iter().map(|(&k, v)| (k, v.clone())).collect();
+                let mut memo: Vec<(u64, Vec<FailAt>)> = st.fail_memo.iter().map(|(&k, v)| (k, v.clone())).collect();
                 memo.sort_unstable_by_key(|e| e.0);
                 (st.compact().faces, assoc, failed, s.faces_checked, s.edges_checked, memo)
             })

@@ -3,7 +3,7 @@
 //! SPEC §1. The independent check is [`crate::validate`]; this one reads the decimator's state.
 
 use crate::decimate::State;
-use crate::eval::{check_face, CheckScratch, CheckStats, FaceCheck, FaceInfo, Found, Map, MapContext, NormalMode, Scratch, Tris, find_primary};
+use crate::guarantee::{check_face, CheckScratch, CheckStats, FaceCheck, FaceInfo, Found, Map, MapContext, NormalMode, Scratch, Tris, find_primary};
 use glam::DVec3;
 use rayon::prelude::*;
 

@@ -13,7 +13,8 @@
 
 use crate::geometry::bvh::Bvh;
 use crate::decimate::{Candidate, State};
-use crate::eval::{best_on_triangle, find_primary, Accepted, Evaluator, Found, Map, NormalMode, Outcome, Reject, Scratch, Tris};
+use crate::decimate::{Accepted, Evaluator, Outcome, Rejected};
+use crate::guarantee::{best_on_triangle, find_primary, FailAt, Found, Map, NormalMode, Reject, Scratch, Tris};
 use crate::geometry::ShellHit;
 use crate::gpu::{Gpu, GpuAnswer, GpuError, GpuNode, GpuQuery, GpuTri, ShellEntry, ShellKernel, WORKGROUP_SIZE};
 use crate::mesh::DenseData;
@@ -400,7 +401,7 @@ impl Evaluator for GpuEvaluator {
         let mut outcomes: Vec<Option<Outcome>> = vec![None; batch.len()];
         let mut first_reason: Vec<Option<Reject>> = vec![None; batch.len()];
         // Where each candidate's earlier placements failed (tested first by the next).
-        let mut first_fail: Vec<Vec<crate::eval::FailAt>> = batch.iter().map(|c| c.first_fail.clone()).collect();
+        let mut first_fail: Vec<Vec<FailAt>> = batch.iter().map(|c| c.first_fail.clone()).collect();
         let rounds = batch.iter().map(|c| c.placements.len()).max().unwrap_or(0);
         for pi in 0..rounds {
             let pairs: Vec<(usize, usize)> =
@@ -412,7 +413,7 @@ impl Evaluator for GpuEvaluator {
             let t0 = Instant::now();
             let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
             let kernel_s = t0.elapsed().as_secs_f64();
-            let mut fails: Vec<Vec<crate::eval::FailAt>> = pairs.iter().map(|&(ci, _)| std::mem::take(&mut first_fail[ci])).collect();
+            let mut fails: Vec<Vec<FailAt>> = pairs.iter().map(|&(ci, _)| std::mem::take(&mut first_fail[ci])).collect();
             let results: Vec<(Result<Accepted, Reject>, u64)> = pairs
                 .par_iter()
                 .zip(prepared.into_par_iter())
@@ -461,7 +462,7 @@ impl Evaluator for GpuEvaluator {
             .into_iter()
             .zip(first_reason)
             .zip(first_fail)
-            .map(|((o, r), at)| o.unwrap_or(Err(crate::eval::Rejected { reason: r.unwrap_or(Reject::Link), at })))
+            .map(|((o, r), at)| o.unwrap_or(Err(Rejected { reason: r.unwrap_or(Reject::Link), at })))
             .collect())
     }
 }

@@ -3,20 +3,7 @@
 pub mod eval;
 pub mod render;
 
-/// Why no GPU work could start.
-#[derive(Debug, thiserror::Error)]
-pub enum GpuError {
-    #[error("no GPU adapter for backends {backends}: {reason} (on Linux, install Mesa's lavapipe: apt-get install mesa-vulkan-drivers libvulkan1)")]
-    NoAdapter { backends: String, reason: String },
-    #[error("cannot open the GPU device {adapter}: {reason}")]
-    Device { adapter: String, reason: String },
-    #[error("GPU readback failed: {0}")]
-    Readback(String),
-    #[error("the GPU rejected the shell kernels: {0}")]
-    Shader(String),
-    #[error("{what} take {bytes} bytes, more than one GPU buffer binding may hold ({limit} bytes)")]
-    TooLarge { what: String, bytes: u64, limit: u64 },
-}
+pub use crate::error::GpuError;
 
 /// An opened device with its queue and the adapter's description.
 pub struct Gpu {
@@ -26,6 +13,18 @@ pub struct Gpu {
 }
 
 impl Gpu {
+    /// Opens the first adapter of the platform's primary backends (Vulkan, Metal, DX12, the
+    /// browser's WebGPU): what the commands use.
+    pub fn open_primary() -> Result<Gpu, GpuError> {
+        Self::new(wgpu::Backends::PRIMARY)
+    }
+
+    /// The name of the best hardware adapter of the primary backends, if there is one (nothing
+    /// is opened): `--backend auto`'s question.
+    pub fn primary_hardware_adapter() -> Result<Option<String>, GpuError> {
+        Ok(Self::hardware_adapter_info(wgpu::Backends::PRIMARY)?.map(|info| info.name))
+    }
+
     /// Opens the first adapter of `backends` (tests ask for `Backends::VULKAN`, which lavapipe
     /// provides on headless machines).
     pub fn new(backends: wgpu::Backends) -> Result<Gpu, GpuError> {

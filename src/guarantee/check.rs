@@ -1074,7 +1074,7 @@ pub fn check_faces<C: MapContext + Sync>(
     // Where an earlier try failed: alone, first (they mostly fail again).
     let t = std::time::Instant::now();
     let r = hinted.iter().try_for_each(|&item| check(item, &mut sc, &mut stats));
-    out.reads.append(&mut sc.solve.reads);
+    out.reads.append(&mut sc.solve.take_reads());
     out.continuity_ns += t.elapsed().as_nanos() as u64;
     r?;
     // Continuity: every edge the walk would visit, once — the listed edges and the edges of
@@ -1158,7 +1158,7 @@ fn in_chunks<T: Sync, E: Send>(
         let mut sc = CheckScratch::default();
         let mut out = EdgeTable::default();
         let r = work(chunk, &mut out, &mut sc, stop);
-        let spent = (std::mem::take(&mut sc.solve.reads), t.elapsed().as_nanos() as u64);
+        let spent = (sc.solve.take_reads(), t.elapsed().as_nanos() as u64);
         match r {
             Ok(()) => Ok((out, spent)),
             Err(e) => Err((e, spent)),

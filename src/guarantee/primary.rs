@@ -198,8 +198,12 @@ pub struct Scratch {
     order: BinaryHeap<Reverse<(i64, u32)>>,
     found: Vec<DVec3>,
     /// Faces a caller's searches read beyond its own set (the decimator's footprint of a
-    /// candidate, [`Scratch::record_within`]); left to the caller to take.
-    pub reads: Vec<u32>,
+    /// candidate, [`Scratch::record_within`]), each once; the caller takes them with
+    /// [`Scratch::take_reads`].
+    reads: Vec<u32>,
+    /// Bit f: face f is in `reads` (a bisection's midpoints read the same faces millions of
+    /// times over a run; a set, not a list of every read).
+    read_bits: Vec<u64>,
 }
 
 impl Scratch {
@@ -214,9 +218,31 @@ impl Scratch {
     /// After [`Scratch::fill_bounds`] over `tris`: records in [`Scratch::reads`] the faces whose
     /// bound is within `reach`, and returns how many there were.
     pub fn record_within(&mut self, tris: &Tris, reach: f64) -> usize {
-        let before = self.reads.len();
-        self.reads.extend(self.bounds.iter().zip(&tris.ids).filter(|(&b, _)| b <= reach).map(|(_, &f)| f));
-        self.reads.len() - before
+        let mut within = 0;
+        for (&b, &f) in self.bounds.iter().zip(&tris.ids) {
+            if b > reach {
+                continue;
+            }
+            within += 1;
+            let (word, bit) = ((f / 64) as usize, 1u64 << (f % 64));
+            if word >= self.read_bits.len() {
+                self.read_bits.resize(word + 1, 0);
+            }
+            if self.read_bits[word] & bit == 0 {
+                self.read_bits[word] |= bit;
+                self.reads.push(f);
+            }
+        }
+        within
+    }
+
+    /// The faces recorded by [`Scratch::record_within`] since the last take, each once, in the
+    /// order first read; the record starts empty again.
+    pub fn take_reads(&mut self) -> Vec<u32> {
+        for &f in &self.reads {
+            self.read_bits[(f / 64) as usize] &= !(1u64 << (f % 64));
+        }
+        std::mem::take(&mut self.reads)
     }
 }
 
@@ -374,7 +400,37 @@ pub struct FaceInfo {
 
 #[cfg(test)]
 mod tests {
-    use super::total_order_key;
+    use super::{total_order_key, Scratch, Tris};
+    use glam::DVec3;
+
+    #[test]
+    fn the_read_record_holds_each_face_once_until_taken() {
+        // Three unit triangles along x, faces 7, 130 and 64 (ids past one word of the bit set):
+        //
+        //   ·---·---·---·
+        //   | 7 |130| 64|      x = (0.5, 0.5, 0) sits over face 7
+        //   ·---·---·---·
+        let mut tris = Tris::default();
+        for (k, id) in [7u32, 130, 64].into_iter().enumerate() {
+            let o = DVec3::new(k as f64, 0.0, 0.0);
+            tris.push(id, [0, 1, 2], [o, o + DVec3::X, o + DVec3::Y], [DVec3::Z; 3]);
+        }
+        tris.finish();
+        let mut sc = Scratch::default();
+        let x = DVec3::new(0.5, 0.2, 0.0);
+        sc.fill_bounds(x, &tris);
+        // Sphere bounds 0, 0.10 and 1.09: reach 0.6 takes faces 7 and 130, not 64.
+        assert_eq!(sc.record_within(&tris, 0.6), 2);
+        // The same search again reads the same faces: counted, not listed twice.
+        assert_eq!(sc.record_within(&tris, 0.6), 2);
+        assert_eq!(sc.record_within(&tris, 10.0), 3);
+        assert_eq!(sc.take_reads(), vec![7, 130, 64]);
+        // Taken: the record starts empty and lists them again.
+        assert!(sc.take_reads().is_empty());
+        sc.fill_bounds(x, &tris);
+        assert_eq!(sc.record_within(&tris, 0.6), 2);
+        assert_eq!(sc.take_reads(), vec![7, 130]);
+    }
 
     #[test]
     fn the_search_order_key_orders_as_total_cmp() {

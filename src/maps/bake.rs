@@ -13,7 +13,7 @@
 //! object-space vector d·N(X).
 
 use crate::geometry::bvh::Bvh;
-use crate::eval::{Map, NormalMode};
+use crate::guarantee::{Map, NormalMode};
 use crate::maps::fold::Atlas;
 use crate::geometry::{clamp_bary, face_normal, interpolate_direction};
 use crate::mesh::DenseData;
@@ -187,7 +187,7 @@ pub fn bake(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMo
     let base_bvh = Bvh::build(&base.positions, &base.faces);
     let texels: Vec<(f32, [f32; 3], u8)> = (0..n * n)
         .into_par_iter()
-        .map_init(|| std::cell::RefCell::new((Vec::new(), crate::eval::Scratch::default(), Vec::new(), crate::eval::Tris::default())), |scratch, i| {
+        .map_init(|| std::cell::RefCell::new((Vec::new(), crate::guarantee::Scratch::default(), Vec::new(), crate::guarantee::Tris::default())), |scratch, i| {
             let (px, py) = (i % n, i / n);
             let Some((f, bary, x, dir)) = texel_point_bary(&atlas, base, mode, px, py) else { return (f32::NAN, [f32::NAN; 3], SOURCE_OUTSIDE) };
             let dir32 = [dir.x as f32, dir.y as f32, dir.z as f32];

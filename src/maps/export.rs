@@ -12,7 +12,7 @@
 //!   detail.
 
 use crate::maps::bake::{DispMap, Kind, Quantisation};
-use crate::eval::NormalMode;
+use crate::guarantee::NormalMode;
 use crate::maps::reconstruct::Rebuilt;
 use crate::validate::Base;
 use glam::DVec3;

@@ -13,7 +13,7 @@
 //! another chart's texels (the displacement map fills gutters from its own chart).
 
 use crate::geometry::bvh::Bvh;
-use crate::eval::{Map, NormalMode, Scratch, Tris};
+use crate::guarantee::{Map, NormalMode, Scratch, Tris};
 use crate::geometry::{barycentric, interpolate_direction};
 use crate::mesh::DenseData;
 use crate::validate::Base;

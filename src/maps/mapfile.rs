@@ -117,7 +117,7 @@ mod tests {
     #[test]
     fn map_round_trips_with_settings_and_reads_the_first_format() {
         let settings = Settings {
-            normals: crate::eval::NormalMode::Interpolated,
+            normals: crate::guarantee::NormalMode::Interpolated,
             dmax: 0.25,
             strict: false,
             scan: "s.obj".into(),

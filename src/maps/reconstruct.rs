@@ -7,7 +7,7 @@
 
 use crate::maps::bake::DispMap;
 use crate::geometry::bvh::Bvh;
-use crate::eval::NormalMode;
+use crate::guarantee::NormalMode;
 use crate::geometry::{face_normal, interpolate_direction};
 use crate::validate::Base;
 use glam::DVec3;

@@ -276,7 +276,7 @@ impl CheckOptions {
 /// A device that can project every dense vertex onto a base (the GPU); the validator knows it
 /// only through this trait.
 pub trait Project {
-    fn project(&self, dense: &DenseData, base: &Base, bvh: &Bvh, mode: NormalMode, dmax: f64) -> Result<Vec<Option<Map>>, crate::gpu::GpuError>;
+    fn project(&self, dense: &DenseData, base: &Base, bvh: &Bvh, mode: NormalMode, dmax: f64) -> Result<Vec<Option<Map>>, crate::error::GpuError>;
 }
 
 /// Judges `base` against the dense mesh over the whole base mesh.
@@ -320,7 +320,7 @@ pub fn validate_on(
     base: &Base,
     opts: &CheckOptions,
     gpu: Option<&dyn Project>,
-) -> Result<(Verdict, Vec<Option<Map>>), crate::gpu::GpuError> {
+) -> Result<(Verdict, Vec<Option<Map>>), crate::error::GpuError> {
     let (mode, dmax, strict) = (opts.mode, opts.dmax, opts.strict);
     // Constant mode: the vertices no base can map (none of their own faces' normals sees all of
     // their faces) are exempt like pinched ones.
