@@ -897,6 +897,16 @@ fn walk_edge<C: MapContext>(ctx: &C, dense: &DenseData, (a, ma): (u32, Map), (b,
     jump
 }
 
+/// The largest open gap of dense edge (a, b)'s image (its samples in `sc.edge`); `None` where
+/// the edge is not judged (an end unmapped or pinched, or the edge exempt).
+fn edge_jump<C: MapContext>(ctx: &C, dense: &DenseData, a: u32, b: u32, sc: &mut CheckScratch) -> Option<f64> {
+    let (ma, mb) = (ctx.map_of(a)?, ctx.map_of(b)?);
+    if dense.is_exempt_edge(a, b) {
+        return None;
+    }
+    Some(walk_edge(ctx, dense, (a, ma), (b, mb), 0, sc))
+}
+
 /// What [`check_faces`] hands back besides its verdict.
 #[derive(Default)]
 pub struct CheckOut {
@@ -920,6 +930,12 @@ impl EdgeTable {
     fn insert(&mut self, key: (u32, u32), jump: f64, samples: &[Sample]) {
         self.index.insert(key, (jump, self.arena.len() as u32, samples.len() as u32));
         self.arena.extend_from_slice(samples);
+    }
+    /// Appends another table's edges (a later chunk's).
+    fn append(&mut self, other: EdgeTable) {
+        let base = self.arena.len() as u32;
+        self.arena.extend_from_slice(&other.arena);
+        self.index.extend(other.index.into_iter().map(|(k, (j, s, l))| (k, (j, s + base, l))));
     }
     fn get(&self, key: (u32, u32)) -> Option<(f64, &[Sample])> {
         let &(j, start, len) = self.index.get(&key)?;
@@ -1056,17 +1072,10 @@ pub fn check_faces<C: MapContext + Sync>(
                 FaceCheck::Flipped => Err((Reject::Flip, item)),
                 FaceCheck::Fine | FaceCheck::Skipped => Ok(()),
             },
-            FailAt::Edge(a, b) => {
-                let (Some(ma), Some(mb)) = (ctx.map_of(a), ctx.map_of(b)) else { return Ok(()) };
-                if dense.is_exempt_edge(a, b) {
-                    return Ok(());
-                }
-                if walk_edge(ctx, dense, (a, ma), (b, mb), 0, sc) > 0.0 {
-                    Err((Reject::Tear, item))
-                } else {
-                    Ok(())
-                }
-            }
+            FailAt::Edge(a, b) => match edge_jump(ctx, dense, a, b, sc) {
+                Some(j) if j > 0.0 => Err((Reject::Tear, item)),
+                _ => Ok(()),
+            },
         }
     };
     let mut sc = CheckScratch::default();
@@ -1118,8 +1127,7 @@ pub fn check_faces<C: MapContext + Sync>(
             if stop() {
                 break;
             }
-            let (Some(ma), Some(mb)) = (ctx.map_of(a), ctx.map_of(b)) else { continue };
-            let j = walk_edge(ctx, dense, (a, ma), (b, mb), 0, sc);
+            let Some(j) = edge_jump(ctx, dense, a, b, sc) else { continue };
             if j > 0.0 {
                 return Err((Reject::Tear, tear_at((a, b))));
             }
@@ -1131,9 +1139,13 @@ pub fn check_faces<C: MapContext + Sync>(
     });
     out.reads.append(&mut rd.0);
     out.continuity_ns += rd.1;
-    let table = std::sync::Arc::new(walked?);
+    let mut table = EdgeTable::default();
+    for part in walked? {
+        table.append(part);
+    }
+    let table = std::sync::Arc::new(table);
     // Orientation: every triangle's loop, its edges read from the table.
-    let (oriented, mut rd) = in_chunks(faces, chunks(faces.len()), |chunk, _: &mut EdgeTable, sc: &mut CheckScratch, stop| {
+    let (oriented, mut rd) = in_chunks(faces, chunks(faces.len()), |chunk, _: &mut (), sc: &mut CheckScratch, stop| {
         sc.shared = Some(table.clone());
         let mut stats = CheckStats::default();
         chunk.iter().take_while(|_| !stop()).try_for_each(|&f| check(FailAt::Face(f), sc, &mut stats))
@@ -1144,19 +1156,19 @@ pub fn check_faces<C: MapContext + Sync>(
 }
 
 /// Runs `work` over `items` in `chunks` contiguous chunks on the threads
-/// ([`super::chunks::run_to_first_failure`]), each with its own scratch and edge table; the
-/// tables are merged in chunk order. The result is the sequential one: the first failure in
+/// ([`super::chunks::run_to_first_failure`]), each with its own scratch and output `R`; the
+/// outputs come back in chunk order. The result is the sequential one: the first failure in
 /// item order. Also returns the chunks' [`Scratch::reads`] and the nanoseconds they ran, summed.
 #[allow(clippy::type_complexity)]
-fn in_chunks<T: Sync, E: Send>(
+fn in_chunks<T: Sync, R: Default + Send, E: Send>(
     items: &[T],
     chunks: usize,
-    work: impl Fn(&[T], &mut EdgeTable, &mut CheckScratch, &dyn Fn() -> bool) -> Result<(), E> + Sync,
-) -> (Result<EdgeTable, E>, (Vec<u32>, u64)) {
+    work: impl Fn(&[T], &mut R, &mut CheckScratch, &dyn Fn() -> bool) -> Result<(), E> + Sync,
+) -> (Result<Vec<R>, E>, (Vec<u32>, u64)) {
     let parts = super::chunks::run_to_first_failure(items, chunks, |chunk, stop| {
         let t = std::time::Instant::now();
         let mut sc = CheckScratch::default();
-        let mut out = EdgeTable::default();
+        let mut out = R::default();
         let r = work(chunk, &mut out, &mut sc, stop);
         let spent = (sc.solve.take_reads(), t.elapsed().as_nanos() as u64);
         match r {
@@ -1165,25 +1177,21 @@ fn in_chunks<T: Sync, E: Send>(
         }
     });
     let (mut reads, mut ns) = (Vec::new(), 0);
-    let mut table = Ok(EdgeTable::default());
+    let mut outs = Ok(Vec::with_capacity(parts.len()));
     for part in parts {
         let (r, (rd, n)) = match part {
-            Ok((part, spent)) => (Ok(part), spent),
+            Ok((out, spent)) => (Ok(out), spent),
             Err((e, spent)) => (Err(e), spent),
         };
         reads.extend_from_slice(&rd);
         ns += n;
-        match (&mut table, r) {
-            (Ok(t), Ok(part)) => {
-                let base = t.arena.len() as u32;
-                t.arena.extend_from_slice(&part.arena);
-                t.index.extend(part.index.into_iter().map(|(k, (j, s, l))| (k, (j, s + base, l))));
-            }
-            (Ok(_), Err(e)) => table = Err(e),
+        match (&mut outs, r) {
+            (Ok(v), Ok(out)) => v.push(out),
+            (Ok(_), Err(e)) => outs = Err(e),
             (Err(_), _) => {}
         }
     }
-    (table, (reads, ns))
+    (outs, (reads, ns))
 }
 
 #[cfg(test)]
