@@ -11,8 +11,9 @@
 //! - [`guarantee`]: the predicates of SPEC §1 every check shares (primary search, continuity,
 //!   orientation in intrinsic charts);
 //! - [`decimate`]: queue, association, rounds, commit; the local test of one candidate
-//!   ([`decimate::local`]), the re-check of its own state ([`decimate::recheck`]), the grids of
-//!   its searches ([`decimate::grid`]), the stage clocks ([`decimate::stages`]) and the
+//!   ([`decimate::local`]), the re-check of its own state ([`decimate::recheck`]), the dense
+//!   vertices of each base face ([`decimate::members`]), the grids of its searches
+//!   ([`decimate::grid`]), the stage clocks ([`decimate::stages`]) and the
 //!   interface its rounds call ([`decimate::outcome`]: [`decimate::Evaluator`], outcomes);
 //! - [`eval`]: the CPU evaluator (the GPU one is [`gpu::eval`]);
 //! - [`gpu`]: the only place that calls wgpu (device, shell kernel context, buffers), the GPU
@@ -22,7 +23,8 @@
 //! - [`settings`]: the settings a base records (BASE.obj, BASE.map) and their resolution
 //!   against flags;
 //! - [`error`]: the GPU error every layer can carry without depending on [`gpu`];
-//! - [`app`]: one job per command (`decimate`, `validate`, `bake`, …, `bench`) and its report.
+//! - [`app`]: one job per command (`decimate`, `validate`, `bake`, …, `bench`) and its report;
+//!   the process's peak memory and allocator setting ([`app::memory`]).
 
 pub mod app;
 pub mod decimate;

@@ -291,6 +291,7 @@ enum Cmd {
 }
 
 fn main() {
+    dispdec::app::memory::keep_heap_compact();
     let cli = Cli::parse();
     if !cli.verbose && std::env::var_os("NODEVICE_SELECT").is_none() {
         // Mesa's device-select Vulkan layer prints an XDG_RUNTIME_DIR line on every adapter

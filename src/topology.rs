@@ -63,7 +63,7 @@ impl std::fmt::Display for TopologyError {
     }
 }
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Topology {
     pub corner: Vec<u32>,
     pub opp: Vec<u32>,

@@ -44,6 +44,11 @@ fn small_sample_decimates_validly_and_deterministically() {
         assert_eq!(r["recheck"]["valid"], true);
         assert!(r["faces_out"].as_u64().unwrap() < 2000, "{}", r["faces_out"]);
         assert_eq!(r["boundary_loops_out"], 1);
+        if cfg!(target_os = "linux") {
+            // The run's peak memory, as the OS counts it (a figure for the reader; its size is
+            // the bench's to measure).
+            assert!(r["peak_rss_mb"].as_f64().is_some_and(|p| p > 0.0), "peak_rss_mb: {}", r["peak_rss_mb"]);
+        }
         outs.push(std::fs::read(&obj).unwrap());
     }
     assert_eq!(outs[0], outs[1], "identical bytes across --threads 1 and 2");

@@ -4,6 +4,7 @@
 //! face count as the reference.
 
 use crate::decimate::Options;
+use crate::app::memory::{peak_rss_mb, reset_peak_rss};
 use crate::app::run::{decimate, Backend, DecimateJob, Report};
 use crate::Error;
 use serde::Serialize;
@@ -92,9 +93,12 @@ pub struct Row {
     pub valid: bool,
     pub runs_total_s: Vec<f64>,
     pub median: Phases,
-    /// Largest peak resident memory over the runs (MB), measured per run; `null` where the OS
-    /// does not say.
+    /// Largest peak resident memory over the runs (MB, 10^6 bytes), measured per run from the
+    /// memory the process holds before it (the free heap of earlier runs given back first);
+    /// `null` where the OS does not say.
     pub peak_rss_mb: Option<f64>,
+    /// `peak_rss_mb` per input face, in bytes.
+    pub peak_bytes_per_face: Option<f64>,
     /// GPU rows: fraction of kernel answers that fell in the tolerance band (settled in f64).
     pub band_fraction: Option<f64>,
     /// GPU rows: median seconds inside the kernels (upload, dispatch, readback); the rest of
@@ -125,18 +129,6 @@ fn machine_name() -> String {
     format!("{cpu}, {} cores, {}", std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1), std::env::consts::OS)
 }
 
-/// Resets the peak resident set size (Linux: clear_refs 5); false where unsupported.
-fn reset_peak_rss() -> bool {
-    std::fs::write("/proc/self/clear_refs", "5").is_ok()
-}
-
-/// Peak resident set size since the last reset, in MB.
-fn peak_rss_mb() -> Option<f64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let l = s.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: f64 = l.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb / 1024.0)
-}
 
 /// The input file of a mesh name (the 1M sample is generated into `work` once).
 fn mesh_path(job: &BenchJob, name: &str) -> Result<PathBuf, Error> {
@@ -295,6 +287,7 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
                 median,
                 faces_out,
                 peak_rss_mb: peak,
+                peak_bytes_per_face: peak.map(|p| p * 1e6 / reports[0].faces_in.max(1) as f64),
                 band_fraction: reports[0].gpu_band.as_ref().map(|b| b.band_fraction()),
                 gpu_kernel_s: reports[0].gpu_band.as_ref().map(|_| m(|r| r.gpu_band.as_ref().map_or(0.0, |b| b.kernel_s))),
                 meshopt_s,
@@ -307,7 +300,7 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
 /// The table `dispdec bench` prints (Markdown, so that the README can show it as is).
 pub fn table(r: &BenchReport) -> String {
     let mut s = format!("machine: {}; median of {} run(s) each\n\n", r.machine, r.runs);
-    s += "| mesh | faces in | path | faces out | total s | evaluate s (in kernels) | pick+commit s | checks s | peak MB | band | meshopt ms | × meshopt |\n";
+    s += "| mesh | faces in | path | faces out | total s | evaluate s (in kernels) | pick+commit s | checks s | peak MB (B/face) | band | meshopt ms | × meshopt |\n";
     s += "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n";
     for row in &r.rows {
         let m = &row.median;
@@ -331,7 +324,10 @@ pub fn table(r: &BenchReport) -> String {
             row.gpu_kernel_s.map_or(String::new(), |k| format!(" ({k:.2})")),
             m.pick_s + m.commit_s,
             m.recheck_s + m.global_s,
-            row.peak_rss_mb.map_or("-".into(), |p| format!("{p:.0}")),
+            match (row.peak_rss_mb, row.peak_bytes_per_face) {
+                (Some(p), Some(b)) => format!("{p:.0} ({b:.0})"),
+                _ => "-".into(),
+            },
             row.band_fraction.map_or("-".into(), |b| format!("{:.1} %", 100.0 * b)),
             1000.0 * row.meshopt_s,
             row.ratio_to_meshopt

@@ -1,5 +1,7 @@
 //! One job per command, options in, files and report out: [`run`] (`decimate`, `validate`, and
-//! the jobs on a base's map) and [`bench`] (`dispdec bench`).
+//! the jobs on a base's map) and [`bench`] (`dispdec bench`); [`memory`] measures what they
+//! hold.
 
 pub mod bench;
+pub mod memory;
 pub mod run;

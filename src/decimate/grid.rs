@@ -95,15 +95,19 @@ impl DenseGrid {
 pub struct FaceGrid {
     frame: Frame,
     cells: Vec<Vec<u32>>,
-    /// Cell range of each face as inserted; `None` for deleted faces.
-    range: Vec<Option<([usize; 3], [usize; 3])>>,
+    /// Cell range of each face as inserted (low corner, high corner); NO_RANGE for deleted
+    /// faces. In u16: the grid has at most FACE_GRID_RESOLUTION + 1 cells a side.
+    range: Vec<[u16; 6]>,
 }
+
+/// The cell range of a face not in the grid.
+const NO_RANGE: [u16; 6] = [u16::MAX; 6];
 
 impl FaceGrid {
     pub fn new(pos: &[DVec3], topo: &Topology) -> FaceGrid {
         let frame = Frame::new(pos, FACE_GRID_RESOLUTION);
         let nf = topo.num_faces_total();
-        let mut g = FaceGrid { cells: vec![Vec::new(); frame.num_cells()], frame, range: vec![None; nf] };
+        let mut g = FaceGrid { cells: vec![Vec::new(); frame.num_cells()], frame, range: vec![NO_RANGE; nf] };
         for f in 0..nf as u32 {
             if topo.face_alive(f) {
                 g.insert(f, topo.face(f).map(|v| pos[v as usize]));
@@ -117,11 +121,13 @@ impl FaceGrid {
         let b = self.frame.coords(p[0].max(p[1]).max(p[2]));
         let cells = &mut self.cells;
         self.frame.for_cells(a, b, |c| cells[c].push(f));
-        self.range[f as usize] = Some((a, b));
+        self.range[f as usize] = [a[0], a[1], a[2], b[0], b[1], b[2]].map(|k| k as u16);
     }
 
     pub fn remove(&mut self, f: u32) {
-        if let Some((a, b)) = self.range[f as usize].take() {
+        let r = std::mem::replace(&mut self.range[f as usize], NO_RANGE);
+        if r != NO_RANGE {
+            let (a, b) = ([0, 1, 2].map(|k| r[k] as usize), [3, 4, 5].map(|k| r[k] as usize));
             let cells = &mut self.cells;
             self.frame.for_cells(a, b, |c| cells[c].retain(|&g| g != f));
         }

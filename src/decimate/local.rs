@@ -306,7 +306,7 @@ impl State {
         }
         for &f in &c.border {
             let fv = self.topo.face(f);
-            for &v in &self.face_dense[f as usize] {
+            for v in self.face_dense.iter(f) {
                 if dense.pinched[v as usize] || extras.binary_search_by_key(&v, |e| e.0).is_ok() {
                     continue;
                 }

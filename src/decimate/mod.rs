@@ -6,6 +6,7 @@
 
 pub mod grid;
 pub mod local;
+pub mod members;
 pub mod outcome;
 pub mod recheck;
 pub mod stages;
@@ -120,7 +121,8 @@ pub struct State {
     pub face_count: usize,
     // Association.
     pub assoc: Vec<Map>,
-    pub face_dense: Vec<Vec<u32>>,
+    /// The dense vertices associated with each base face, in the order they were associated.
+    pub face_dense: members::FaceMembers,
     /// Static grid over the dense vertices.
     pub grid: DenseGrid,
     /// Dynamic grid over the base faces.
@@ -199,7 +201,7 @@ impl State {
             topo,
             face_count: nf,
             assoc: Vec::with_capacity(nv),
-            face_dense: vec![Vec::new(); nf],
+            face_dense: members::FaceMembers::new(nf, nv),
             grid: DenseGrid::new(&dense.positions),
             face_grid: FaceGrid::new(&dense.positions, &dense.topology),
             max_abs_d: 0.0,
@@ -239,7 +241,7 @@ impl State {
             let mut bary = [0.0; 3];
             bary[k] = 1.0;
             st.assoc.push(Map { face: f, bary, d: 0.0 });
-            st.face_dense[f as usize].push(v);
+            st.face_dense.push(f, v);
         }
         for h in 0..st.topo.corner.len() as u32 {
             let (a, b) = (st.topo.from(h), st.topo.to(h));
@@ -388,7 +390,7 @@ impl State {
     fn fill_dense(&self, c: &mut Candidate) {
         let mut order_vs: Vec<u32> = Vec::new();
         for &f in c.region.iter() {
-            order_vs.extend_from_slice(&self.face_dense[f as usize]);
+            order_vs.extend(self.face_dense.iter(f));
         }
         let mut dense = order_vs.clone();
         dense.sort_unstable();
@@ -506,21 +508,21 @@ impl State {
                 self.dir[v as usize] = d;
             }
             for &f in c.region.iter() {
-                self.face_dense[f as usize].clear();
+                self.face_dense.clear(f);
                 fmark[f as usize] = round;
             }
             for (i, &v) in c.dense.iter().enumerate() {
                 let m = acc.maps[i];
                 self.assoc[v as usize] = m;
-                self.face_dense[m.face as usize].push(v);
+                self.face_dense.push(m.face, v);
                 self.max_abs_d = self.max_abs_d.max(m.d.abs());
                 vmark[v as usize] = round;
             }
             for &(v, m) in &acc.extras {
                 let old = self.assoc[v as usize].face;
-                self.face_dense[old as usize].retain(|&x| x != v);
+                self.face_dense.remove(old, v);
                 self.assoc[v as usize] = m;
-                self.face_dense[m.face as usize].push(v);
+                self.face_dense.push(m.face, v);
                 vmark[v as usize] = round;
             }
             // Re-queue the edges whose neighbourhood changed: those around the 2-ring of u.

@@ -16,7 +16,7 @@ impl State {
         let per_face: Vec<Vec<(u32, Option<Map>, bool)>> = (0..nf)
             .into_par_iter()
             .map(|f| {
-                if !self.topo.face_alive(f) || self.face_dense[f as usize].is_empty() {
+                if !self.topo.face_alive(f) || self.face_dense.is_empty(f) {
                     return Vec::new();
                 }
                 let mut tris = Tris::default();
@@ -24,9 +24,9 @@ impl State {
                 let mut scratch = Scratch::default();
                 let mut normals = Vec::new();
                 let dense = &self.dense;
-                self.face_dense[f as usize]
-                    .iter()
-                    .map(|&v| {
+                self.face_dense
+                    .iter(f)
+                    .map(|v| {
                         dense.vertex_normals(v, &mut normals);
                         let pinched = self.dense.pinched[v as usize];
                         let x = self.dense.pos[v as usize];

@@ -215,7 +215,7 @@ impl Scratch {
         &self.bounds
     }
 
-    /// After [`Scratch::fill_bounds`] over `tris`: records in [`Scratch::reads`] the faces whose
+    /// After [`Scratch::fill_bounds`] over `tris`: records in the read record ([`Scratch::take_reads`]) the faces whose
     /// bound is within `reach`, and returns how many there were.
     pub fn record_within(&mut self, tris: &Tris, reach: f64) -> usize {
         let mut within = 0;
