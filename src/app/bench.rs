@@ -97,8 +97,6 @@ pub struct Row {
     /// memory the process holds before it (the free heap of earlier runs given back first);
     /// `null` where the OS does not say.
     pub peak_rss_mb: Option<f64>,
-    /// `peak_rss_mb` per input face, in bytes.
-    pub peak_bytes_per_face: Option<f64>,
     /// GPU rows: fraction of kernel answers that fell in the tolerance band (settled in f64).
     pub band_fraction: Option<f64>,
     /// GPU rows: median seconds inside the kernels (upload, dispatch, readback); the rest of
@@ -287,7 +285,6 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
                 median,
                 faces_out,
                 peak_rss_mb: peak,
-                peak_bytes_per_face: peak.map(|p| p * 1e6 / reports[0].faces_in.max(1) as f64),
                 band_fraction: reports[0].gpu_band.as_ref().map(|b| b.band_fraction()),
                 gpu_kernel_s: reports[0].gpu_band.as_ref().map(|_| m(|r| r.gpu_band.as_ref().map_or(0.0, |b| b.kernel_s))),
                 meshopt_s,
@@ -324,10 +321,7 @@ pub fn table(r: &BenchReport) -> String {
             row.gpu_kernel_s.map_or(String::new(), |k| format!(" ({k:.2})")),
             m.pick_s + m.commit_s,
             m.recheck_s + m.global_s,
-            match (row.peak_rss_mb, row.peak_bytes_per_face) {
-                (Some(p), Some(b)) => format!("{p:.0} ({b:.0})"),
-                _ => "-".into(),
-            },
+            row.peak_rss_mb.map_or("-".into(), |p| format!("{p:.0} ({:.0})", p * 1e6 / row.faces_in.max(1) as f64)),
             row.band_fraction.map_or("-".into(), |b| format!("{:.1} %", 100.0 * b)),
             1000.0 * row.meshopt_s,
             row.ratio_to_meshopt

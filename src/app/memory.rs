@@ -4,9 +4,9 @@
 /// Blocks at least this large come straight from the OS and go back to it when freed.
 /// Why: glibc raises this threshold each time it frees such a block (up to 32 MB), after which
 /// the candidate test's per-candidate buffers (up to a few MB late in a run) came from the heap
-/// and fragmented it: the bunny's live heap stays under 22 MB, its resident set reached 43 MB on
-/// two threads. Fixed at 1 MiB: 37 MB, 1.3 s of system time (64 KiB: 36 MB, 2.7 s; glibc's
-/// default 0.5 s), the same wall time within noise (76–79 s).
+/// and fragmented it: the bunny's live heap stays under 22 MB, its resident set reached 44 MB on
+/// two threads (10^6 bytes). Fixed at 1 MiB: 38 MB, 1.3 s of system time (64 KiB: 37 MB, 2.7 s;
+/// glibc's default 0.5 s), the same wall time within noise (76–79 s).
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 const MMAP_THRESHOLD: libc::c_int = 1024 * 1024;
 

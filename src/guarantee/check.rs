@@ -139,7 +139,8 @@ pub struct Sample {
     pub verts: [u32; 3],
     /// The image point X on L.
     pub p: DVec3,
-    /// |dX/dx| along the edge at this point (∞ where the shell's Jacobian is singular).
+    /// |dX/dx| along the edge at this point (∞ where the shell's Jacobian is singular; NaN in a
+    /// [`loop_sample`]).
     pub sigma: f64,
 }
 
@@ -230,9 +231,17 @@ fn edge_crossing(t1: &FaceInfo, m0: Map, k: usize, x0: DVec3, x1: DVec3, mode: N
     None
 }
 
+/// A sample of an edge running along unit direction `e`.
 fn make_sample<C: MapContext>(ctx: &C, m: Map, e: DVec3) -> Sample {
     let info = ctx.face_info(m.face);
     Sample { m, verts: info.verts, p: interpolate_direction(&info.pos, &m.bary), sigma: stretch(&info, &m, ctx.mode(), e) }
+}
+
+/// A sample for an image loop only: its stretch is not computed (NaN; loops never read it, and a
+/// bisection that did would find it inconsistent and refine further).
+fn loop_sample<C: MapContext>(ctx: &C, m: Map) -> Sample {
+    let info = ctx.face_info(m.face);
+    Sample { m, verts: info.verts, p: interpolate_direction(&info.pos, &m.bary), sigma: f64::NAN }
 }
 
 /// How the base faces of two samples relate.
@@ -855,7 +864,7 @@ fn face_loop<C: MapContext>(
         let (a, b) = (fv[k], fv[(k + 1) % 3]);
         let (ka, kb) = (k, (k + 1) % 3);
         let (lo, hi, klo, khi) = if a < b { (a, b, ka, kb) } else { (b, a, kb, ka) };
-        let cached = if min_depth == 0 { sc.cached_edge(ctx, dense, (lo, m[klo]), (hi, m[khi])) } else { None };
+        let cached = if min_depth == 0 { sc.cached_edge(ctx, (lo, m[klo]), (hi, m[khi])) } else { None };
         let jump = match cached {
             Some(j) => j,
             None => walk_edge(ctx, dense, (lo, m[klo]), (hi, m[khi]), min_depth, sc),
@@ -969,18 +978,15 @@ pub struct CheckScratch {
 
 impl CheckScratch {
     /// The image of edge (a, b) (a < b; maps `ma`, `mb`) from the walked edges into
-    /// `self.edge`: its end samples as [`edge_image`] makes them around the stored inner ones.
+    /// `self.edge`, for a loop: the stored inner samples between the ends' [`loop_sample`]s.
     /// `None` where no walk is shared; otherwise the edge is continuous (jump 0).
-    fn cached_edge<C: MapContext>(&mut self, ctx: &C, dense: &DenseData, (a, ma): (u32, Map), (b, mb): (u32, Map)) -> Option<f64> {
+    fn cached_edge<C: MapContext>(&mut self, ctx: &C, (a, ma): (u32, Map), (b, mb): (u32, Map)) -> Option<f64> {
         let CheckScratch { shared, edge, .. } = self;
         let table = shared.as_deref()?;
-        let (xa, xb) = (dense.pos[a as usize], dense.pos[b as usize]);
-        let len = xa.distance(xb);
-        let e = if len > 0.0 { (xb - xa) / len } else { DVec3::X };
         edge.clear();
-        edge.push(make_sample(ctx, ma, e));
+        edge.push(loop_sample(ctx, ma));
         edge.extend_from_slice(table.inner((a, b)));
-        edge.push(make_sample(ctx, mb, e));
+        edge.push(loop_sample(ctx, mb));
         Some(0.0)
     }
 }
