@@ -95,6 +95,14 @@ enum BenchConfig {
     Gpu,
 }
 
+fn bench_config(c: BenchConfig) -> dispdec::app::bench::Config {
+    match c {
+        BenchConfig::Cpu1 => dispdec::app::bench::Config::Cpu1,
+        BenchConfig::Cpu => dispdec::app::bench::Config::Cpu,
+        BenchConfig::Gpu => dispdec::app::bench::Config::Gpu,
+    }
+}
+
 #[derive(Subcommand)]
 enum Cmd {
     /// Benchmark the CPU and GPU paths on the same inputs (medians of --runs runs), with
@@ -122,6 +130,18 @@ enum Cmd {
         /// Folder for the generated sample and the outputs (default: a temporary folder).
         #[arg(long)]
         work: Option<PathBuf>,
+    },
+    /// One run of `dispdec bench`, in a process of its own (so that its peak memory is its own):
+    /// decimates INPUT into OUTPUT with default options and writes what was measured as JSON.
+    #[command(hide = true)]
+    BenchRun {
+        input: PathBuf,
+        output: PathBuf,
+        #[arg(long, value_enum)]
+        config: BenchConfig,
+        /// Where the measurement goes (JSON).
+        #[arg(long)]
+        result: PathBuf,
     },
     /// Decimate INPUT (OBJ or PLY, optionally .gz) into a base mesh.
     Decimate {
@@ -570,16 +590,10 @@ fn run(cli: Cli) -> Result<i32> {
             let job = dispdec::app::bench::BenchJob {
                 data,
                 meshes,
-                configs: configs
-                    .into_iter()
-                    .map(|c| match c {
-                        BenchConfig::Cpu1 => dispdec::app::bench::Config::Cpu1,
-                        BenchConfig::Cpu => dispdec::app::bench::Config::Cpu,
-                        BenchConfig::Gpu => dispdec::app::bench::Config::Gpu,
-                    })
-                    .collect(),
+                configs: configs.into_iter().map(bench_config).collect(),
                 runs,
                 work: work.unwrap_or_else(|| std::env::temp_dir().join(format!("dispdec-bench-{}", std::process::id()))),
+                exe: std::env::current_exe()?,
             };
             let report = dispdec::app::bench::bench(&job, |line| say.line(line))?;
             print!("{}", dispdec::app::bench::table(&report));
@@ -587,6 +601,11 @@ fn run(cli: Cli) -> Result<i32> {
                 let text = serde_json::to_string_pretty(&report)?;
                 dispdec::mesh::write_atomic(&p, text.as_bytes())?;
             }
+            Ok(0)
+        }
+        Cmd::BenchRun { input, output, config, result } => {
+            let outcome = dispdec::app::bench::run_one(&input, &output, bench_config(config));
+            dispdec::mesh::write_atomic(&result, serde_json::to_string(&outcome)?.as_bytes())?;
             Ok(0)
         }
         Cmd::Sample { output, faces, seed } => {

@@ -346,6 +346,10 @@ fn bench_compares_the_paths_on_the_same_input() {
         assert!(row["median"]["total_s"].as_f64().unwrap() > 0.0);
         assert!(row["meshopt_s"].as_f64().unwrap() > 0.0);
         assert!(row["ratio_to_meshopt"].as_f64().unwrap() > 1.0);
+        if cfg!(target_os = "linux") {
+            // Each run's peak, measured in its own process (`dispdec bench-run`).
+            assert!(row["peak_rss_mb"].as_f64().is_some_and(|p| p > 0.0), "{row}");
+        }
     }
     assert_eq!(rows[0]["threads"], 1);
     // The per-stage timers, in the JSON and in the printed stage table.

@@ -1,18 +1,18 @@
 //! `dispdec bench`: the CPU and GPU paths side by side on the same inputs — the bunny, the horse,
-//! a 200k+ face scan and a ~1M-face sample — each configuration run several times in this one
-//! process, medians reported, with a quadric-error decimator (meshoptimizer) timed to the same
-//! face count as the reference.
+//! a 200k+ face scan and a ~1M-face sample — each configuration run several times, each run in
+//! a process of its own (so that its peak memory is its own), medians reported, with a
+//! quadric-error decimator (meshoptimizer) timed to the same face count as the reference.
 
 use crate::decimate::Options;
-use crate::app::memory::{peak_rss_mb, reset_peak_rss};
+use crate::app::memory::peak_rss_mb;
 use crate::app::run::{decimate, Backend, DecimateJob, Report};
 use crate::Error;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// One configuration of the evaluator.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Config {
     /// The CPU evaluator on one thread.
@@ -45,6 +45,120 @@ pub struct BenchJob {
     pub runs: usize,
     /// Where the generated ~1M-face sample and the outputs go.
     pub work: PathBuf,
+    /// The `dispdec` executable each run is measured in: `dispdec bench-run` ([`run_one`]) in a
+    /// process of its own.
+    pub exe: PathBuf,
+}
+
+/// One decimation as `dispdec bench-run` measures it, in its own process.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RunResult {
+    pub faces_in: usize,
+    pub faces_out: usize,
+    pub threads: usize,
+    pub adapter: String,
+    /// Valid under the local re-check and the global check.
+    pub valid: bool,
+    pub load_s: f64,
+    pub init_s: f64,
+    pub pick_s: f64,
+    pub evaluate_s: f64,
+    pub commit_s: f64,
+    pub recheck_s: f64,
+    pub global_s: f64,
+    pub total_s: f64,
+    pub stages_cpu_s: Vec<(String, f64)>,
+    pub rejected_cpu_s: f64,
+    /// GPU runs: the share of kernel answers settled in f64, and the seconds in the kernels.
+    pub band_fraction: Option<f64>,
+    pub kernel_s: Option<f64>,
+    /// The process's peak resident set (MB, 10^6 bytes): everything the run held, the scan
+    /// included, and nothing of any other run.
+    pub peak_rss_mb: Option<f64>,
+}
+
+/// What `dispdec bench-run` writes: the run, or why it could not run.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub enum RunOutcome {
+    Done(RunResult),
+    /// No GPU adapter (the configuration is skipped, not failed).
+    NoGpu(String),
+    Failed(String),
+}
+
+/// One measured decimation (the body of `dispdec bench-run`): `input` → `output` in `config`,
+/// default options.
+pub fn run_one(input: &Path, output: &Path, config: Config) -> RunOutcome {
+    let dj = DecimateJob {
+        input: input.to_path_buf(),
+        output: output.to_path_buf(),
+        map: None,
+        report: None,
+        options: Options::default(),
+        threads: Some(if config == Config::Cpu1 { 1 } else { 0 }),
+        progress: false,
+        backend: if config == Config::Gpu { Backend::Gpu } else { Backend::Cpu },
+        preparation: Default::default(),
+        repaired: None,
+    };
+    match decimate(&dj) {
+        Ok(r) => RunOutcome::Done(RunResult::of(&r, peak_rss_mb())),
+        Err(Error::Gpu(e)) => RunOutcome::NoGpu(e.to_string()),
+        Err(e) => RunOutcome::Failed(e.to_string()),
+    }
+}
+
+impl RunResult {
+    fn of(r: &Report, peak_rss_mb: Option<f64>) -> RunResult {
+        RunResult {
+            faces_in: r.faces_in,
+            faces_out: r.faces_out,
+            threads: r.threads,
+            adapter: r.adapter.clone(),
+            valid: r.recheck.valid && r.global.valid,
+            load_s: r.time.load_s,
+            init_s: r.time.init_s,
+            pick_s: r.time.pick_s,
+            evaluate_s: r.time.evaluate_s,
+            commit_s: r.time.commit_s,
+            recheck_s: r.time.recheck_s,
+            global_s: r.time.global_s,
+            total_s: r.time.total_s,
+            stages_cpu_s: r.collapses.stages.stages_cpu_s.clone(),
+            rejected_cpu_s: r.collapses.stages.rejected_cpu_s,
+            band_fraction: r.gpu_band.as_ref().map(|b| b.band_fraction()),
+            kernel_s: r.gpu_band.as_ref().map(|b| b.kernel_s),
+            peak_rss_mb,
+        }
+    }
+}
+
+/// Runs `dispdec bench-run` for one decimation in a child process and reads its outcome.
+fn measure(job: &BenchJob, input: &Path, output: &Path, config: Config) -> Result<RunOutcome, Error> {
+    let result = output.with_extension("run.json");
+    let _ = std::fs::remove_file(&result);
+    let config_name = match config {
+        Config::Cpu1 => "cpu1",
+        Config::Cpu => "cpu",
+        Config::Gpu => "gpu",
+    };
+    let out = std::process::Command::new(&job.exe)
+        .arg("bench-run")
+        .arg(input)
+        .arg(output)
+        .args(["--config", config_name, "--result"])
+        .arg(&result)
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .output()
+        .map_err(|e| Error::Output { path: job.exe.display().to_string(), msg: format!("cannot run a bench process: {e}") })?;
+    let failed = |why: String| Error::Output { path: result.display().to_string(), msg: why };
+    let text = std::fs::read(&result).map_err(|_| {
+        let err = String::from_utf8_lossy(&out.stderr);
+        let tail: Vec<&str> = err.lines().rev().take(5).collect::<Vec<_>>().into_iter().rev().collect();
+        failed(format!("the bench process ({}) ended with {} and wrote no result: {}", job.exe.display(), out.status, tail.join(" / ")))
+    })?;
+    serde_json::from_slice(&text).map_err(|e| failed(format!("unreadable bench result: {e}")))
 }
 
 /// The median of a non-empty list.
@@ -93,9 +207,9 @@ pub struct Row {
     pub valid: bool,
     pub runs_total_s: Vec<f64>,
     pub median: Phases,
-    /// Largest peak resident memory over the runs (MB, 10^6 bytes), measured per run from the
-    /// memory the process holds before it (the free heap of earlier runs given back first);
-    /// `null` where the OS does not say.
+    /// Largest peak resident memory over the runs (MB, 10^6 bytes), each run measured in a
+    /// process of its own (Linux VmHWM: the scan, the decimation, the checks and the process's
+    /// own code); `null` where the OS does not say.
     pub peak_rss_mb: Option<f64>,
     /// GPU rows: fraction of kernel answers that fell in the tolerance band (settled in f64).
     pub band_fraction: Option<f64>,
@@ -204,74 +318,54 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
             if config == Config::Gpu && !gpu_ok {
                 continue;
             }
-            let mut reports: Vec<Report> = Vec::new();
-            let mut peak = None::<f64>;
+            let mut reports: Vec<RunResult> = Vec::new();
             for run in 0..job.runs.max(1) {
                 let out = job.work.join(format!("{name}-{config:?}.obj"));
-                let dj = DecimateJob {
-                    input: path.clone(),
-                    output: out,
-                    map: None,
-                    report: None,
-                    options: Options::default(),
-                    threads: Some(if config == Config::Cpu1 { 1 } else { 0 }),
-                    progress: false,
-                    backend: if config == Config::Gpu { Backend::Gpu } else { Backend::Cpu },
-                    preparation: Default::default(),
-                    repaired: None,
-                };
-                let measured = reset_peak_rss();
-                match decimate(&dj) {
-                    Ok(r) => {
-                        if measured {
-                            if let Some(p) = peak_rss_mb() {
-                                peak = Some(peak.map_or(p, |q: f64| q.max(p)));
-                            }
-                        }
+                match measure(job, &path, &out, config)? {
+                    RunOutcome::Done(r) => {
                         progress(&format!(
-                            "{name} ({} faces), {}, run {}/{}: {} faces in {:.2} s",
+                            "{name} ({} faces), {}, run {}/{}: {} faces in {:.2} s, peak {}",
                             r.faces_in,
                             config.name(),
                             run + 1,
                             job.runs.max(1),
                             r.faces_out,
-                            r.time.total_s
+                            r.total_s,
+                            r.peak_rss_mb.map_or("-".into(), |p| format!("{p:.1} MB"))
                         ));
                         reports.push(r);
                     }
-                    Err(Error::Gpu(e)) => {
+                    RunOutcome::NoGpu(e) => {
                         skipped.push(format!("gpu: {e}"));
                         gpu_ok = false;
                         break;
                     }
-                    Err(e) => return Err(e),
+                    RunOutcome::Failed(e) => return Err(Error::Output { path: path.display().to_string(), msg: format!("bench run failed: {e}") }),
                 }
             }
             if reports.is_empty() {
                 continue;
             }
-            let m = |f: fn(&Report) -> f64| median(&reports.iter().map(f).collect::<Vec<_>>());
+            let m = |f: fn(&RunResult) -> f64| median(&reports.iter().map(f).collect::<Vec<_>>());
             let faces_out: Vec<usize> = reports.iter().map(|r| r.faces_out).collect();
             let target = *reference_faces.get_or_insert(faces_out[0]);
             let meshopt_s = quadric.time(&path, target, job.runs)?;
             let median = Phases {
-                load_s: m(|r| r.time.load_s),
-                init_s: m(|r| r.time.init_s),
-                pick_s: m(|r| r.time.pick_s),
-                evaluate_s: m(|r| r.time.evaluate_s),
-                commit_s: m(|r| r.time.commit_s),
-                recheck_s: m(|r| r.time.recheck_s),
-                global_s: m(|r| r.time.global_s),
-                total_s: m(|r| r.time.total_s),
+                load_s: m(|r| r.load_s),
+                init_s: m(|r| r.init_s),
+                pick_s: m(|r| r.pick_s),
+                evaluate_s: m(|r| r.evaluate_s),
+                commit_s: m(|r| r.commit_s),
+                recheck_s: m(|r| r.recheck_s),
+                global_s: m(|r| r.global_s),
+                total_s: m(|r| r.total_s),
                 stages_cpu_s: reports[0]
-                    .collapses
-                    .stages
                     .stages_cpu_s
                     .iter()
                     .enumerate()
-                    .map(|(i, (name, _))| (name.clone(), median(&reports.iter().map(|r| r.collapses.stages.stages_cpu_s[i].1).collect::<Vec<_>>())))
+                    .map(|(i, (name, _))| (name.clone(), median(&reports.iter().map(|r| r.stages_cpu_s[i].1).collect::<Vec<_>>())))
                     .collect(),
-                rejected_cpu_s: m(|r| r.collapses.stages.rejected_cpu_s),
+                rejected_cpu_s: m(|r| r.rejected_cpu_s),
             };
             rows.push(Row {
                 mesh: name.clone(),
@@ -279,14 +373,14 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
                 config,
                 threads: reports[0].threads,
                 adapter: reports[0].adapter.clone(),
-                valid: reports.iter().all(|r| r.recheck.valid && r.global.valid),
-                runs_total_s: reports.iter().map(|r| r.time.total_s).collect(),
+                valid: reports.iter().all(|r| r.valid),
+                runs_total_s: reports.iter().map(|r| r.total_s).collect(),
                 ratio_to_meshopt: median.total_s / meshopt_s,
                 median,
                 faces_out,
-                peak_rss_mb: peak,
-                band_fraction: reports[0].gpu_band.as_ref().map(|b| b.band_fraction()),
-                gpu_kernel_s: reports[0].gpu_band.as_ref().map(|_| m(|r| r.gpu_band.as_ref().map_or(0.0, |b| b.kernel_s))),
+                peak_rss_mb: reports.iter().filter_map(|r| r.peak_rss_mb).reduce(f64::max),
+                band_fraction: reports[0].band_fraction,
+                gpu_kernel_s: reports[0].kernel_s.map(|_| m(|r| r.kernel_s.unwrap_or(0.0))),
                 meshopt_s,
             });
         }

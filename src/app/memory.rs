@@ -1,5 +1,6 @@
-//! The process's memory as a user's `top` sees it: the peak resident set (Linux's VmHWM), reset
-//! between a bench's runs, and the allocator setting that keeps it near what the heap holds.
+//! The process's memory as a user's `top` sees it: the peak resident set (Linux's VmHWM; the
+//! bench runs each decimation in a process of its own to measure it), and the allocator setting
+//! that keeps it near what the heap holds.
 
 /// Blocks at least this large come straight from the OS and go back to it when freed.
 /// Why: glibc raises this threshold each time it frees such a block (up to 32 MB), after which
@@ -20,19 +21,7 @@ pub fn keep_heap_compact() {
     }
 }
 
-/// Resets the peak resident set size (Linux: clear_refs 5), first handing the allocator's free
-/// memory back to the OS (glibc: malloc_trim), so that the next peak is the next run's own and
-/// not what earlier runs left behind. False where unsupported.
-pub fn reset_peak_rss() -> bool {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: malloc_trim only releases free memory of glibc's heap.
-    unsafe {
-        libc::malloc_trim(0);
-    }
-    std::fs::write("/proc/self/clear_refs", "5").is_ok()
-}
-
-/// Peak resident set size since the process started or the last [`reset_peak_rss`], in MB
+/// Peak resident set size since the process started, in MB
 /// (10^6 bytes); `None` where the OS does not say.
 pub fn peak_rss_mb() -> Option<f64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
