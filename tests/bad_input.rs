@@ -186,3 +186,31 @@ fn bad_options_are_usage_errors() {
     assert_eq!(o.status.code(), Some(2));
     assert!(!out.exists());
 }
+
+/// `dispdec bench` reports bad input as `decimate` does — exit 2, the file and the problem
+/// named — both where its own process finds it (a scan it cannot read) and where a run's
+/// process does (`dispdec bench-run`, here unable to write its base): the child's error comes
+/// back as the error it is, not as a failed child.
+#[test]
+fn bench_reports_bad_input_from_either_process() {
+    let d = tempdir("bench-bad");
+    //   four triangles hinged on edge 1-2, alternating: a pure non-manifold edge
+    let p = write(
+        &d,
+        "book4.obj",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nv 0 0 -1\nf 1 2 3\nf 2 1 4\nf 1 2 5\nf 2 1 6\n",
+    );
+    let o = run(&["bench", "--meshes", p.to_str().unwrap(), "--work", d.join("work").to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("book4.obj") && err.contains("non-manifold edge"), "{err}");
+    // A valid tetrahedron whose run cannot write its base: a folder sits where the base goes.
+    let tet = write(&d, "tet.obj", &format!("{TET_V}f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"));
+    let work = d.join("work2");
+    std::fs::create_dir_all(work.join("tet.obj-Cpu1.obj")).unwrap();
+    let o = run(&["bench", "--meshes", tet.to_str().unwrap(), "--configs", "cpu1", "--work", work.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("cannot write") && err.contains("tet.obj-Cpu1.obj"), "{err}");
+    assert!(!err.contains("panicked") && !err.contains("bench process"), "{err}");
+}

@@ -77,13 +77,16 @@ pub struct RunResult {
     pub peak_rss_mb: Option<f64>,
 }
 
-/// What `dispdec bench-run` writes: the run, or why it could not run.
+/// What `dispdec bench-run` writes: the run, or why it could not run (the error as the bench's
+/// own process reports it: a bad scan is an input error naming the file).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub enum RunOutcome {
     Done(RunResult),
-    /// No GPU adapter (the configuration is skipped, not failed).
+    /// No GPU work could start (the configuration is skipped, not failed).
     NoGpu(String),
-    Failed(String),
+    Input { path: String, msg: String },
+    Output { path: String, msg: String },
+    Usage(String),
 }
 
 /// One measured decimation (the body of `dispdec bench-run`): `input` → `output` in `config`,
@@ -104,7 +107,9 @@ pub fn run_one(input: &Path, output: &Path, config: Config) -> RunOutcome {
     match decimate(&dj) {
         Ok(r) => RunOutcome::Done(RunResult::of(&r, peak_rss_mb())),
         Err(Error::Gpu(e)) => RunOutcome::NoGpu(e.to_string()),
-        Err(e) => RunOutcome::Failed(e.to_string()),
+        Err(Error::Input { path, msg }) => RunOutcome::Input { path, msg },
+        Err(Error::Output { path, msg }) => RunOutcome::Output { path, msg },
+        Err(Error::Usage(m)) => RunOutcome::Usage(m),
     }
 }
 
@@ -137,16 +142,13 @@ impl RunResult {
 fn measure(job: &BenchJob, input: &Path, output: &Path, config: Config) -> Result<RunOutcome, Error> {
     let result = output.with_extension("run.json");
     let _ = std::fs::remove_file(&result);
-    let config_name = match config {
-        Config::Cpu1 => "cpu1",
-        Config::Cpu => "cpu",
-        Config::Gpu => "gpu",
-    };
+    // The command line's name of the configuration (clap's and serde's: kebab-case).
+    let config_name = serde_json::to_value(config).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default();
     let out = std::process::Command::new(&job.exe)
         .arg("bench-run")
         .arg(input)
         .arg(output)
-        .args(["--config", config_name, "--result"])
+        .args(["--config", &config_name, "--result"])
         .arg(&result)
         .stdin(std::process::Stdio::null())
         .stdout(std::process::Stdio::null())
@@ -320,7 +322,9 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
             }
             let mut reports: Vec<RunResult> = Vec::new();
             for run in 0..job.runs.max(1) {
-                let out = job.work.join(format!("{name}-{config:?}.obj"));
+                // In the work folder whatever the mesh (a user's path names only its file).
+                let stem = Path::new(name).file_name().map_or_else(|| name.clone(), |f| f.to_string_lossy().into_owned());
+                let out = job.work.join(format!("{stem}-{config:?}.obj"));
                 match measure(job, &path, &out, config)? {
                     RunOutcome::Done(r) => {
                         progress(&format!(
@@ -340,7 +344,9 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
                         gpu_ok = false;
                         break;
                     }
-                    RunOutcome::Failed(e) => return Err(Error::Output { path: path.display().to_string(), msg: format!("bench run failed: {e}") }),
+                    RunOutcome::Input { path, msg } => return Err(Error::Input { path, msg }),
+                    RunOutcome::Output { path, msg } => return Err(Error::Output { path, msg }),
+                    RunOutcome::Usage(m) => return Err(Error::Usage(m)),
                 }
             }
             if reports.is_empty() {

@@ -143,17 +143,22 @@ impl State {
                     Found::None if pinched => self.nearest_fallback(x, tris),
                     Found::None => return Err((Reject::Unmapped, state)),
                 };
-                out.push((i, m));
+                out.push(m);
             }
             Ok((out, state))
         });
+        // Each chunk's maps follow its stretch of `c.order` (no index stored beside them: late in
+        // a run a region holds half the scan's vertices). Where every chunk passed, every chunk
+        // ran whole, so the stretches follow one another; otherwise the maps are not used.
         let mut maps = vec![Map { face: INVALID, bary: [0.0; 3], d: 0.0 }; c.dense.len()];
+        let mut order = c.order.iter();
         let mut states = Vec::with_capacity(parts.len());
         let mut verdict = Ok(());
         for part in parts {
             match part {
                 Ok((solved, state)) => {
-                    for (i, m) in solved {
+                    // `solved` first: zip stops at its end without taking one more of `order`.
+                    for (m, &i) in solved.into_iter().zip(order.by_ref()) {
                         maps[i as usize] = m;
                     }
                     states.push(state);
