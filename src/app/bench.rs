@@ -59,16 +59,8 @@ pub struct RunResult {
     pub adapter: String,
     /// Valid under the local re-check and the global check.
     pub valid: bool,
-    pub load_s: f64,
-    pub init_s: f64,
-    pub pick_s: f64,
-    pub evaluate_s: f64,
-    pub commit_s: f64,
-    pub recheck_s: f64,
-    pub global_s: f64,
-    pub total_s: f64,
-    pub stages_cpu_s: Vec<(String, f64)>,
-    pub rejected_cpu_s: f64,
+    /// This run's seconds per phase and stage.
+    pub time: Phases,
     /// GPU runs: the share of kernel answers settled in f64, and the seconds in the kernels.
     pub band_fraction: Option<f64>,
     pub kernel_s: Option<f64>,
@@ -121,16 +113,18 @@ impl RunResult {
             threads: r.threads,
             adapter: r.adapter.clone(),
             valid: r.recheck.valid && r.global.valid,
-            load_s: r.time.load_s,
-            init_s: r.time.init_s,
-            pick_s: r.time.pick_s,
-            evaluate_s: r.time.evaluate_s,
-            commit_s: r.time.commit_s,
-            recheck_s: r.time.recheck_s,
-            global_s: r.time.global_s,
-            total_s: r.time.total_s,
-            stages_cpu_s: r.collapses.stages.stages_cpu_s.clone(),
-            rejected_cpu_s: r.collapses.stages.rejected_cpu_s,
+            time: Phases {
+                load_s: r.time.load_s,
+                init_s: r.time.init_s,
+                pick_s: r.time.pick_s,
+                evaluate_s: r.time.evaluate_s,
+                commit_s: r.time.commit_s,
+                recheck_s: r.time.recheck_s,
+                global_s: r.time.global_s,
+                total_s: r.time.total_s,
+                stages_cpu_s: r.collapses.stages.stages_cpu_s.clone(),
+                rejected_cpu_s: r.collapses.stages.rejected_cpu_s,
+            },
             band_fraction: r.gpu_band.as_ref().map(|b| b.band_fraction()),
             kernel_s: r.gpu_band.as_ref().map(|b| b.kernel_s),
             peak_rss_mb,
@@ -178,8 +172,8 @@ pub fn median(v: &[f64]) -> f64 {
     }
 }
 
-/// Median seconds per phase.
-#[derive(Clone, Debug, Serialize)]
+/// Seconds per phase (of one run, or the medians of a row's runs).
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Phases {
     pub load_s: f64,
     pub init_s: f64,
@@ -193,6 +187,30 @@ pub struct Phases {
     /// `collapses.stages`), and over candidates that failed every placement.
     pub stages_cpu_s: Vec<(String, f64)>,
     pub rejected_cpu_s: f64,
+}
+
+impl Phases {
+    /// The median of every field over `runs` (non-empty, with the same stages).
+    fn median(runs: &[&Phases]) -> Phases {
+        let m = |f: fn(&Phases) -> f64| median(&runs.iter().map(|p| f(p)).collect::<Vec<_>>());
+        Phases {
+            load_s: m(|p| p.load_s),
+            init_s: m(|p| p.init_s),
+            pick_s: m(|p| p.pick_s),
+            evaluate_s: m(|p| p.evaluate_s),
+            commit_s: m(|p| p.commit_s),
+            recheck_s: m(|p| p.recheck_s),
+            global_s: m(|p| p.global_s),
+            total_s: m(|p| p.total_s),
+            stages_cpu_s: runs[0]
+                .stages_cpu_s
+                .iter()
+                .enumerate()
+                .map(|(i, (name, _))| (name.clone(), median(&runs.iter().map(|p| p.stages_cpu_s[i].1).collect::<Vec<_>>())))
+                .collect(),
+            rejected_cpu_s: m(|p| p.rejected_cpu_s),
+        }
+    }
 }
 
 /// One (mesh, configuration) row.
@@ -334,7 +352,7 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
                             run + 1,
                             job.runs.max(1),
                             r.faces_out,
-                            r.total_s,
+                            r.time.total_s,
                             r.peak_rss_mb.map_or("-".into(), |p| format!("{p:.1} MB"))
                         ));
                         reports.push(r);
@@ -352,27 +370,11 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
             if reports.is_empty() {
                 continue;
             }
-            let m = |f: fn(&RunResult) -> f64| median(&reports.iter().map(f).collect::<Vec<_>>());
             let faces_out: Vec<usize> = reports.iter().map(|r| r.faces_out).collect();
             let target = *reference_faces.get_or_insert(faces_out[0]);
             let meshopt_s = quadric.time(&path, target, job.runs)?;
-            let median = Phases {
-                load_s: m(|r| r.load_s),
-                init_s: m(|r| r.init_s),
-                pick_s: m(|r| r.pick_s),
-                evaluate_s: m(|r| r.evaluate_s),
-                commit_s: m(|r| r.commit_s),
-                recheck_s: m(|r| r.recheck_s),
-                global_s: m(|r| r.global_s),
-                total_s: m(|r| r.total_s),
-                stages_cpu_s: reports[0]
-                    .stages_cpu_s
-                    .iter()
-                    .enumerate()
-                    .map(|(i, (name, _))| (name.clone(), median(&reports.iter().map(|r| r.stages_cpu_s[i].1).collect::<Vec<_>>())))
-                    .collect(),
-                rejected_cpu_s: m(|r| r.rejected_cpu_s),
-            };
+            let phases = Phases::median(&reports.iter().map(|r| &r.time).collect::<Vec<_>>());
+            let kernel_s = reports[0].kernel_s.map(|_| median(&reports.iter().map(|r| r.kernel_s.unwrap_or(0.0)).collect::<Vec<_>>()));
             rows.push(Row {
                 mesh: name.clone(),
                 faces_in: reports[0].faces_in,
@@ -380,13 +382,13 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
                 threads: reports[0].threads,
                 adapter: reports[0].adapter.clone(),
                 valid: reports.iter().all(|r| r.valid),
-                runs_total_s: reports.iter().map(|r| r.total_s).collect(),
-                ratio_to_meshopt: median.total_s / meshopt_s,
-                median,
+                runs_total_s: reports.iter().map(|r| r.time.total_s).collect(),
+                ratio_to_meshopt: phases.total_s / meshopt_s,
+                median: phases,
                 faces_out,
                 peak_rss_mb: reports.iter().filter_map(|r| r.peak_rss_mb).reduce(f64::max),
                 band_fraction: reports[0].band_fraction,
-                gpu_kernel_s: reports[0].kernel_s.map(|_| m(|r| r.kernel_s.unwrap_or(0.0))),
+                gpu_kernel_s: kernel_s,
                 meshopt_s,
             });
         }
