@@ -4,7 +4,6 @@
 //! quadric-error decimator (meshoptimizer) timed to the same face count as the reference.
 
 use crate::decimate::Options;
-use crate::app::memory::peak_rss_mb;
 use crate::app::run::{decimate, Backend, DecimateJob, Report};
 use crate::Error;
 use serde::{Deserialize, Serialize};
@@ -12,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// One configuration of the evaluator.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Config {
     /// The CPU evaluator on one thread.
@@ -28,6 +27,15 @@ impl Config {
         match self {
             Config::Cpu1 => "cpu, 1 thread",
             Config::Cpu => "cpu, all threads",
+            Config::Gpu => "gpu",
+        }
+    }
+
+    /// Its name on the command line (`--configs`, `bench-run --config`).
+    pub fn arg(self) -> &'static str {
+        match self {
+            Config::Cpu1 => "cpu1",
+            Config::Cpu => "cpu",
             Config::Gpu => "gpu",
         }
     }
@@ -97,7 +105,7 @@ pub fn run_one(input: &Path, output: &Path, config: Config) -> RunOutcome {
         repaired: None,
     };
     match decimate(&dj) {
-        Ok(r) => RunOutcome::Done(RunResult::of(&r, peak_rss_mb())),
+        Ok(r) => RunOutcome::Done(RunResult::of(&r)),
         Err(Error::Gpu(e)) => RunOutcome::NoGpu(e.to_string()),
         Err(Error::Input { path, msg }) => RunOutcome::Input { path, msg },
         Err(Error::Output { path, msg }) => RunOutcome::Output { path, msg },
@@ -106,7 +114,7 @@ pub fn run_one(input: &Path, output: &Path, config: Config) -> RunOutcome {
 }
 
 impl RunResult {
-    fn of(r: &Report, peak_rss_mb: Option<f64>) -> RunResult {
+    fn of(r: &Report) -> RunResult {
         RunResult {
             faces_in: r.faces_in,
             faces_out: r.faces_out,
@@ -127,7 +135,7 @@ impl RunResult {
             },
             band_fraction: r.gpu_band.as_ref().map(|b| b.band_fraction()),
             kernel_s: r.gpu_band.as_ref().map(|b| b.kernel_s),
-            peak_rss_mb,
+            peak_rss_mb: r.peak_rss_mb,
         }
     }
 }
@@ -136,13 +144,11 @@ impl RunResult {
 fn measure(job: &BenchJob, input: &Path, output: &Path, config: Config) -> Result<RunOutcome, Error> {
     let result = output.with_extension("run.json");
     let _ = std::fs::remove_file(&result);
-    // The command line's name of the configuration (clap's and serde's: kebab-case).
-    let config_name = serde_json::to_value(config).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default();
     let out = std::process::Command::new(&job.exe)
         .arg("bench-run")
         .arg(input)
         .arg(output)
-        .args(["--config", &config_name, "--result"])
+        .args(["--config", config.arg(), "--result"])
         .arg(&result)
         .stdin(std::process::Stdio::null())
         .stdout(std::process::Stdio::null())
