@@ -16,6 +16,54 @@ use std::collections::BinaryHeap;
 /// Why: barycentric tolerance BARY_EPS puts shared-edge duplicates within ~1e-9 of each other.
 pub const SAME_SOLUTION_REL: f64 = 1e-7;
 
+/// Slack added to every lean of [`Lean`] (a component of a unit direction).
+/// Why: a hit's barycentrics may be as low as −BARY_EPS, which moves N(X) off the convex hull
+/// of the Ni by at most 4·BARY_EPS in any component.
+const LEAN_EPS: f64 = 1e-8;
+
+/// The smallest Ni·n for which d of every solution has the sign of x's height over the plane.
+/// Why: then N(X)·n > 0 on the whole triangle, far above LEAN_EPS.
+const LEAN_SIDE_MIN: f64 = 1e-6;
+
+/// Distances of [`lean_lower_bound`] are shortened by this much of the triangle's size and of
+/// dmax before they bound |d|.
+/// Why: BARY_EPS lets X sit ~1e-9 of the size outside the triangle, and a polished root leaves
+/// x ~1e-9·dmax off the plane of Q(d) at worst (at the degeneracy limit of `barycentric`).
+const LEAN_SLACK_SIZE: f64 = 1e-6;
+const LEAN_SLACK_DMAX: f64 = 1e-7;
+
+/// How a triangle's vertex directions lean across its edges, for [`lean_lower_bound`].
+#[derive(Clone, Copy, Debug)]
+pub struct Lean {
+    /// Outward unit normal of edge k (opposite corner k) in the triangle's plane (zero for a
+    /// degenerate triangle).
+    pub out: [DVec3; 3],
+    /// [max Ni·out_k, max −Ni·out_k]: how far a solution with d > 0 (resp. d < 0) can reach
+    /// across edge k per unit of |d|.
+    pub across: [[f64; 2]; 3],
+    /// min Ni·n.
+    pub n_lo: f64,
+}
+
+impl Lean {
+    fn new(pos: &[DVec3; 3], dir: &[DVec3; 3], n: DVec3) -> Lean {
+        let mut out = [DVec3::ZERO; 3];
+        let mut across = [[0.0; 2]; 3];
+        for k in 0..3 {
+            let (a, b) = (pos[(k + 1) % 3], pos[(k + 2) % 3]);
+            let mut u = (b - a).cross(n).normalize_or_zero();
+            if (pos[k] - a).dot(u) > 0.0 {
+                u = -u;
+            }
+            out[k] = u;
+            let lean = dir.map(|d| d.dot(u));
+            across[k] = [lean.iter().fold(f64::MIN, |m, &l| m.max(l)), lean.iter().fold(f64::MIN, |m, &l| m.max(-l))];
+        }
+        let n_lo = if n == DVec3::ZERO { 0.0 } else { dir.iter().map(|d| d.dot(n)).fold(f64::MAX, f64::min) };
+        Lean { out, across, n_lo }
+    }
+}
+
 /// The directions used on the base mesh.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -83,6 +131,8 @@ pub struct Tris {
     /// Per triangle (unit normal n, max |Ni·n|, max |Ni − (Ni·n)n|): the shell bound of
     /// [`shell_lower_bound`].
     pub slope: Vec<(DVec3, f64, f64)>,
+    /// Per triangle, how its directions lean across its edges: [`lean_lower_bound`].
+    pub lean: Vec<Lean>,
     /// (face id, index) sorted by id, for lookups; rebuilt by [`Tris::finish`].
     lookup: Vec<(u32, u32)>,
 }
@@ -101,6 +151,7 @@ impl Tris {
         self.dir.clear();
         self.sphere.clear();
         self.slope.clear();
+        self.lean.clear();
         self.lookup.clear();
     }
     pub fn push(&mut self, id: u32, verts: [u32; 3], pos: [DVec3; 3], dir: [DVec3; 3]) {
@@ -111,6 +162,7 @@ impl Tris {
         let nu = dir.iter().map(|d| d.dot(n).abs()).fold(0.0, f64::max);
         let tau = dir.iter().map(|d| (*d - n * d.dot(n)).length()).fold(0.0, f64::max);
         self.slope.push((n, nu, tau));
+        self.lean.push(Lean::new(&pos, &dir, n));
         self.pos.push(pos);
         self.dir.push(dir);
     }
@@ -160,6 +212,48 @@ pub fn shell_lower_bound(x: DVec3, tris: &Tris, t: usize, mode: NormalMode) -> f
     let by_h = if h == 0.0 { 0.0 } else if nu > 0.0 { h / nu } else { f64::INFINITY };
     let by_r = if r == 0.0 { 0.0 } else if tau > 0.0 { r / tau } else { f64::INFINITY };
     dist.max(by_h.min(f64::MAX)).max(by_r) * (1.0 - 1e-9)
+}
+
+/// A second lower bound on |d| of any solution of `x` on triangle `t` (interpolated
+/// directions), by the side of each edge: x − X = d·N(X) with X on the triangle, so where x's
+/// foot lies a distance r outside edge k, d·N(X)·out_k ≥ r, and |d| ≥ r / (how far the Ni lean
+/// across that edge on d's side). Where every Ni·n > 0, d has the sign of x's height h over
+/// the plane, and |d| ≥ |h| / max Ni·n. ∞ where no direction leans across an edge x lies
+/// beyond. Often far tighter than [`shell_lower_bound`] beside a triangle, where directions
+/// lean the other way: culls a triangle before its cubic is solved, with the same answer.
+///
+/// ```text
+///            x  (r outside edge k, above the plane)
+///     N1  N2 |        a solution needs some Ni leaning outward across edge k,
+///      \ |  |        by at least r/|d|
+///   ----*-*--+ edge k
+/// ```
+#[inline]
+pub fn lean_lower_bound(x: DVec3, tris: &Tris, t: usize, dmax: f64) -> f64 {
+    let (n, n_hi, _) = tris.slope[t];
+    let (l, p) = (&tris.lean[t], &tris.pos[t]);
+    let slack = LEAN_SLACK_SIZE * tris.sphere[t].1 + LEAN_SLACK_DMAX * dmax;
+    let h = (x - p[0]).dot(n);
+    let r = [(x - p[1]).dot(l.out[0]) - slack, (x - p[2]).dot(l.out[1]) - slack, (x - p[0]).dot(l.out[2]) - slack];
+    let signed = l.n_lo > LEAN_SIDE_MIN;
+    let by_h = if signed { (h.abs() - slack).max(0.0) / (n_hi + LEAN_EPS) } else { 0.0 };
+    // The bound for solutions with d on side s (0: d > 0, 1: d < 0).
+    let side = |s: usize| -> f64 {
+        let mut b = by_h;
+        for k in 0..3 {
+            if r[k] > 0.0 {
+                let g = l.across[k][s] + LEAN_EPS;
+                if !(g > 0.0) {
+                    return f64::INFINITY;
+                }
+                b = b.max(r[k] / g);
+            }
+        }
+        b
+    };
+    let up = if signed && h < -slack { f64::INFINITY } else { side(0) };
+    let down = if signed && h > slack { f64::INFINITY } else { side(1) };
+    up.min(down) * (1.0 - 1e-9)
 }
 
 /// Solves one triangle of the neighbourhood in the given mode.
@@ -310,7 +404,7 @@ pub fn find_primary_bounded(
             Some((_, h)) if !strict => h.d.abs() + tie,
             _ => dmax,
         };
-        if shell_lower_bound(x, tris, ti, mode) > reach {
+        if (mode == NormalMode::Interpolated && lean_lower_bound(x, tris, ti, dmax) > reach) || shell_lower_bound(x, tris, ti, mode) > reach {
             return;
         }
         for h in solve_tri(x, tris, ti, mode, dmax).iter() {
@@ -430,6 +524,65 @@ mod tests {
         sc.fill_bounds(x, &tris);
         assert_eq!(sc.record_within(&tris, 0.6), 2);
         assert_eq!(sc.take_reads(), vec![7, 130]);
+    }
+
+    #[test]
+    fn the_lean_bound_never_culls_a_solution_and_culls_most_misses() {
+        // Random triangles, directions near the normal (spread 0.5) or wild (spread 2: some
+        // lean below the plane, so d's sign is not known), points on the shell (some exactly
+        // on an edge or a corner) and points anywhere near it. Every solution of the cubic must
+        // have |d| ≥ the bound; a point with no solution should mostly be culled.
+        let mut seed = 0x2545F4914F6CDD1Du64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let vec = |next: &mut dyn FnMut() -> f64| DVec3::new(2.0 * next() - 1.0, 2.0 * next() - 1.0, 2.0 * next() - 1.0);
+        let (mut solutions, mut misses, mut culled) = (0, 0, 0);
+        for i in 0..20000 {
+            let p = [vec(&mut next), vec(&mut next), vec(&mut next)];
+            let nf = crate::geometry::face_normal(p[0], p[1], p[2]);
+            if nf == DVec3::ZERO {
+                continue;
+            }
+            let spread = if i % 4 == 0 { 2.0 } else { 0.5 };
+            let n = [0, 1, 2].map(|_| (nf + spread * vec(&mut next)).normalize_or(nf));
+            let x = if i % 2 == 0 {
+                let mut b = [next(), next(), next()];
+                if i % 6 == 0 {
+                    b[(i / 6) % 3] = 0.0;
+                }
+                if i % 10 == 0 {
+                    b = [0.0, 0.0, 1.0];
+                }
+                let sum = b[0] + b[1] + b[2];
+                let b = b.map(|v| v / sum);
+                let d = 0.9 * (2.0 * next() - 1.0);
+                crate::geometry::interpolate_direction(&p, &b) + d * crate::geometry::interpolate_direction(&n, &b)
+            } else {
+                (p[0] + p[1] + p[2]) / 3.0 + 1.5 * vec(&mut next)
+            };
+            let mut tris = Tris::default();
+            tris.push(0, [0, 1, 2], p, n);
+            let dmax = 1.0;
+            let bound = super::lean_lower_bound(x, &tris, 0, dmax);
+            let hits = crate::geometry::solve_shell(x, &p, &n, dmax);
+            for h in hits.iter() {
+                solutions += 1;
+                assert!(h.d.abs() >= bound, "solution d = {} below the bound {bound} (case {i})", h.d);
+            }
+            if hits.iter().next().is_none() {
+                misses += 1;
+                culled += usize::from(bound > dmax);
+            }
+        }
+        // Measured: 11,230 solutions, all above the bound; 8,548 of 9,596 misses culled (89 %).
+        // Bounds 2 % and 4 points below.
+        assert!(solutions > 11000, "{solutions} solutions");
+        let share = culled as f64 / misses as f64;
+        assert!(share > 0.85, "the bound culls {culled} of {misses} misses");
     }
 
     #[test]
