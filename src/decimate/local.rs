@@ -621,6 +621,9 @@ impl MapContext for CandidateContext<'_> {
         let outer = self.outer.get_or_init(|| st.outer_faces(self.c, self.tris, self.faces, self.maps, self.extras));
         let search = |best: Option<Map>, far: &Tris, scratch: &mut Scratch| -> Option<Map> {
             let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
+            if !Scratch::any_within(x, far, reach) {
+                return best;
+            }
             scratch.fill_bounds(x, far);
             if scratch.record_within(far, reach) == 0 {
                 // No face there is within reach: the search would find nothing.

@@ -324,6 +324,17 @@ impl Scratch {
         &self.bounds
     }
 
+    /// Whether some triangle of `tris` may have its sphere bound within `reach` of `x`: false
+    /// only where [`Scratch::fill_bounds`] and [`Scratch::record_within`] would find none (a
+    /// squared distance against (reach + radius)·(1 + 1e-9), no square root: most points of
+    /// a check have no face of the outer set within reach).
+    pub fn any_within(x: DVec3, tris: &Tris, reach: f64) -> bool {
+        tris.sphere.iter().any(|&(c, r)| {
+            let lim = (reach + r) * (1.0 + 1e-9);
+            !((x - c).length_squared() > lim * lim)
+        })
+    }
+
     /// After [`Scratch::fill_bounds`] over `tris`: records in the read record ([`Scratch::take_reads`]) the faces whose
     /// bound is within `reach`, and returns how many there were.
     pub fn record_within(&mut self, tris: &Tris, reach: f64) -> usize {
