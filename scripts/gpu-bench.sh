@@ -1,0 +1,98 @@
+#!/usr/bin/env bash
+# The benchmark on a machine with a GPU and no network (issue 11): packed here, run there.
+#
+#   bash scripts/gpu-bench.sh pack
+#       Here, with a network: builds the release binary, puts a stripped copy, the scans the
+#       bench reads (bunny, horse, igea from ../shared/data) and the Vulkan loader's Debian
+#       packages into .gpubench/ (ignored by git; ~17 MB), and prints how to run it there.
+#
+#   bash scripts/gpu-bench.sh run OUT [MESHES] [CONFIGS] [LIMIT_S]
+#       There, from the repository root with .gpubench/ beside the scripts: installs the
+#       loader if the machine has none, points it at NVIDIA's driver where that is installed
+#       outside the loader's search path, then runs
+#       `dispdec bench --meshes M --configs CONFIGS --runs 1 --json OUT/bench-M.json` for each
+#       mesh M of MESHES (default: bunny,horse; CONFIGS default cpu,gpu), all within LIMIT_S
+#       seconds (default 420), and writes OUT/env.txt (machine, driver) and OUT/bench.log.
+#       The 1M sample (`sample1m`) is generated there by the binary itself. Exit status: 0,
+#       or the last failing bench's (124 when the limit stopped it; what finished of that mesh
+#       is in the log).
+#
+# Tested on lavapipe (`run` on this machine, where the loader and Mesa are installed).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+pack=.gpubench
+
+case "${1:-}" in
+pack)
+  data=${DISPDEC_DATA:-../shared/data}
+  cargo build --release
+  rm -rf "$pack"
+  mkdir -p "$pack/data" "$pack/gl"
+  grep -qx "/$pack/" .git/info/exclude 2>/dev/null || echo "/$pack/" >>.git/info/exclude
+  cp target/release/dispdec "$pack/dispdec"
+  strip "$pack/dispdec"
+  for f in bunny.ply.gz horse.ply.gz igea.ply.gz; do
+    cp "$data/$f" "$pack/data/"
+  done
+  # The Vulkan loader for an amd64 machine, whatever this one is (the device notes' recipe).
+  lists=$(mktemp -d)
+  mkdir -p "$lists/partial"
+  o=(-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 "-oDir::State::Lists=$lists")
+  apt-get "${o[@]}" update -qq
+  (cd "$pack/gl" && apt-get "${o[@]}" download libvulkan1 >/dev/null)
+  rm -rf "$lists"
+  du -sh "$pack"
+  echo "carry: $pack    command: bash scripts/gpu-bench.sh run \$OUT bunny,horse cpu,gpu 420"
+  ;;
+run)
+  out=${2:?usage: gpu-bench.sh run OUT [MESHES] [CONFIGS] [LIMIT_S]}
+  meshes=${3:-bunny,horse}
+  configs=${4:-cpu,gpu}
+  limit=${5:-420}
+  [ -x "$pack/dispdec" ] || { echo "gpu-bench: $pack/dispdec missing: run 'bash scripts/gpu-bench.sh pack' first" >&2; exit 2; }
+  mkdir -p "$out"
+  if ! ldconfig -p | grep -q 'libvulkan\.so\.1'; then
+    for f in "$pack"/gl/*.deb; do dpkg -x "$f" /; done
+    ldconfig
+  fi
+  # NVIDIA's driver files outside the loader's search path (as on the lent machines).
+  nv=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+  if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f "$nv" ] && ! ls /usr/share/vulkan/icd.d/*nvidia* /etc/vulkan/icd.d/*nvidia* >/dev/null 2>&1; then
+    export VK_DRIVER_FILES=$nv
+  fi
+  export NODEVICE_SELECT=1
+  {
+    echo "date: $(date -u +%FT%TZ)"
+    echo "machine: $(uname -srm), $(nproc) cores, $(awk '/MemTotal/ {printf "%.0f GiB", $2 / 1048576}' /proc/meminfo)"
+    echo "cpu: $(awk -F': ' '/model name/ {print $2; exit}' /proc/cpuinfo)"
+    command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | sed 's/^/gpu: /'
+    echo "VK_DRIVER_FILES=${VK_DRIVER_FILES:-}"
+    echo "binary: $("$pack/dispdec" --version)"
+  } >"$out/env.txt" 2>&1 || true
+  cat "$out/env.txt"
+  # One bench a mesh, each with its own JSON, so that the limit loses only the mesh it stops.
+  end=$((SECONDS + limit))
+  rc=0
+  set +e
+  for mesh in ${meshes//,/ }; do
+    left=$((end - SECONDS))
+    if [ "$left" -le 0 ]; then
+      echo "gpu-bench: no time left for $mesh" | tee -a "$out/bench.log"
+      rc=124
+      break
+    fi
+    name=$(basename "$mesh" | sed 's/[^A-Za-z0-9_.-]/_/g')
+    timeout "$left" "$pack/dispdec" bench --verbose --data "$pack/data" --meshes "$mesh" --configs "$configs" \
+      --runs 1 --work "$(mktemp -d)" --json "$out/bench-$name.json" 2>&1 | tee -a "$out/bench.log"
+    r=${PIPESTATUS[0]}
+    echo "gpu-bench: $mesh: exit $r; $out/bench-$name.json $([ -f "$out/bench-$name.json" ] && echo written || echo 'not written')" | tee -a "$out/bench.log"
+    [ "$r" = 0 ] || rc=$r
+  done
+  set -e
+  exit "$rc"
+  ;;
+*)
+  sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'
+  exit 2
+  ;;
+esac
