@@ -550,6 +550,17 @@ mod tests {
         sc.fill_bounds(x, &tris);
         assert_eq!(sc.record_within(&tris, 0.6), 2);
         assert_eq!(sc.take_reads(), vec![7, 130]);
+        // The square-root-free pre-test says "none" exactly where the record finds none,
+        // also at the edge of reach (face 64's bound is 1.0869...).
+        let b64 = crate::geometry::sphere_lower_bound(x, tris.sphere[2].0, tris.sphere[2].1);
+        let far = Tris { ids: vec![64], verts: vec![tris.verts[2]], pos: vec![tris.pos[2]], dir: vec![tris.dir[2]], sphere: vec![tris.sphere[2]], slope: vec![tris.slope[2]], lean: vec![tris.lean[2]], lookup: Vec::new() };
+        for reach in [0.5, b64 * (1.0 - 1e-12), b64, b64 * (1.0 + 1e-12), 2.0] {
+            sc.fill_bounds(x, &far);
+            let n = sc.record_within(&far, reach);
+            sc.take_reads();
+            assert!(Scratch::any_within(x, &far, reach) || n == 0, "reach {reach}: the pre-test missed a face");
+            assert_eq!(Scratch::any_within(x, &far, reach), reach > 1.0, "reach {reach}");
+        }
     }
 
     #[test]
