@@ -299,6 +299,13 @@ fn total_order_key(x: f64) -> i64 {
     bits ^ ((((bits >> 63) as u64) >> 1) as i64)
 }
 
+/// The f64 whose [`total_order_key`] is `key`.
+#[inline]
+fn from_order_key(key: i64) -> f64 {
+    // The key flips the magnitude bits of negative values only; flipping them again undoes it.
+    f64::from_bits((key ^ ((((key >> 63) as u64) >> 1) as i64)) as u64)
+}
+
 /// Reusable per-thread scratch space.
 #[derive(Default)]
 pub struct Scratch {
@@ -399,8 +406,7 @@ pub fn find_primary_hinted(
     hint: &[usize],
     scratch: &mut Scratch,
 ) -> Found {
-    scratch.fill_bounds(x, tris);
-    find_primary_bounded(x, normals, tris, mode, dmax, check4, strict, hint, scratch)
+    search(x, normals, tris, mode, dmax, check4, strict, hint, false, scratch)
 }
 
 /// [`find_primary_hinted`] over bounds already in `scratch` ([`Scratch::fill_bounds`] for the
@@ -417,8 +423,29 @@ pub fn find_primary_bounded(
     hint: &[usize],
     scratch: &mut Scratch,
 ) -> Found {
+    debug_assert_eq!(scratch.bounds.len(), tris.len());
+    search(x, normals, tris, mode, dmax, check4, strict, hint, true, scratch)
+}
+
+/// The search of [`find_primary_bounded`] (`filled`: the sphere bounds are in `scratch`) and of
+/// [`find_primary_hinted`] (`!filled`: each bound is computed where it is needed, and a triangle
+/// whose sphere is plainly out of reach is passed over without one). The same triangles are
+/// visited in the same order either way.
+#[allow(clippy::too_many_arguments)]
+fn search(
+    x: DVec3,
+    normals: &[DVec3],
+    tris: &Tris,
+    mode: NormalMode,
+    dmax: f64,
+    check4: bool,
+    strict: bool,
+    hint: &[usize],
+    filled: bool,
+    scratch: &mut Scratch,
+) -> Found {
     let m = tris.len();
-    debug_assert_eq!(scratch.bounds.len(), m);
+    let bound = |bounds: &[f64], t: usize| if filled { bounds[t] } else { sphere_lower_bound(x, tris.sphere[t].0, tris.sphere[t].1) };
     scratch.found.clear();
     let mut best: Option<(usize, ShellHit)> = None;
     let tie = SAME_SOLUTION_REL * dmax;
@@ -455,13 +482,16 @@ pub fn find_primary_bounded(
             }
         }
     };
-    // The hints first (a hint out of reach is only marked visited)...
-    for &ti in hint.iter().filter(|&&t| t < m) {
-        let tb = scratch.bounds[ti];
-        if !tb.is_finite() {
+    // The hints first (a hint out of reach is only passed over)...
+    let hinted = |t: usize, upto: usize| hint[..upto].contains(&t);
+    for (i, &ti) in hint.iter().enumerate() {
+        if ti >= m || hinted(ti, i) {
             continue; // a repeated hint
         }
-        scratch.bounds[ti] = f64::INFINITY;
+        let tb = bound(&scratch.bounds, ti);
+        if !tb.is_finite() {
+            continue;
+        }
         if tb > dmax || (!strict && best.is_some_and(|(_, h)| tb > h.d.abs() + tie)) {
             continue;
         }
@@ -474,10 +504,27 @@ pub fn find_primary_bounded(
         _ => dmax,
     };
     // A heap, not a sort: the search mostly stops after a few triangles.
-    scratch.order.clear();
-    scratch.order.extend(scratch.bounds.iter().enumerate().filter(|(_, &b)| b <= reach).map(|(t, &b)| Reverse((total_order_key(b), t as u32))));
-    while let Some(Reverse((_, ti))) = scratch.order.pop() {
-        let tb = scratch.bounds[ti as usize];
+    let mut order = std::mem::take(&mut scratch.order).into_vec();
+    order.clear();
+    for t in 0..m {
+        let b = if filled {
+            scratch.bounds[t]
+        } else {
+            // |x − c| > (reach + r)·(1 + 1e-9): the bound exceeds reach, whatever its rounding.
+            let (c, r) = tris.sphere[t];
+            let lim = (reach + r) * (1.0 + 1e-9);
+            if (x - c).length_squared() > lim * lim {
+                continue;
+            }
+            bound(&scratch.bounds, t)
+        };
+        if b <= reach && !hinted(t, hint.len()) {
+            order.push(Reverse((total_order_key(b), t as u32)));
+        }
+    }
+    scratch.order = BinaryHeap::from(order);
+    while let Some(Reverse((key, ti))) = scratch.order.pop() {
+        let tb = from_order_key(key);
         if !strict && best.is_some_and(|(_, h)| tb > h.d.abs() + tie) {
             break;
         }
@@ -520,7 +567,7 @@ pub struct FaceInfo {
 
 #[cfg(test)]
 mod tests {
-    use super::{total_order_key, Scratch, Tris};
+    use super::{from_order_key, total_order_key, Scratch, Tris};
     use glam::DVec3;
 
     #[test]
@@ -631,6 +678,7 @@ mod tests {
             for &b in &xs {
                 assert_eq!(total_order_key(a).cmp(&total_order_key(b)), a.total_cmp(&b), "{a:e} vs {b:e}");
             }
+            assert_eq!(from_order_key(total_order_key(a)).to_bits(), a.to_bits(), "{a:e} back from its key");
         }
     }
 }
