@@ -103,10 +103,20 @@ impl State {
         let (maps, _) = self.solve_region_vertices(
             c,
             tris,
-            || (Scratch::default(), Vec::new()),
-            |(scratch, normals), i, x, pinched| {
+            || (Scratch::default(), Vec::new(), usize::MAX),
+            |(scratch, normals, last), i, x, pinched| {
                 self.dense.vertex_normals(c.dense[i], normals);
-                find_primary(x, normals, tris, self.mode, self.dmax, !pinched, self.strict && !pinched, scratch)
+                let strict = self.strict && !pinched;
+                if strict {
+                    return find_primary(x, normals, tris, self.mode, self.dmax, !pinched, true, scratch);
+                }
+                // The previous vertex's triangle first (`c.order` keeps neighbours together): a
+                // first hit there leaves only the triangles within its |d| to bound.
+                let found = find_primary_hinted(x, normals, tris, self.mode, self.dmax, !pinched, false, &[*last], scratch);
+                if let Found::Hit(t, _) = found {
+                    *last = t;
+                }
+                found
             },
         );
         self.clock.lap(Stage::Primaries, t);
