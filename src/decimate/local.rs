@@ -639,7 +639,7 @@ impl MapContext for CandidateContext<'_> {
                 // No face there is within reach: the search would find nothing.
                 return best;
             }
-            pick(best, far, find_primary_bounded(x, normals, far, st.mode, reach.min(st.dmax), true, false, &hint(far), scratch))
+            pick(best, far, find_primary_bounded(x, normals, far, st.mode, reach.min(st.dmax), true, false, &hint(far), true, scratch))
         };
         best = search(best, &outer.tris, scratch);
         let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);

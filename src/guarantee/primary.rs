@@ -406,33 +406,16 @@ pub fn find_primary_hinted(
     hint: &[usize],
     scratch: &mut Scratch,
 ) -> Found {
-    search(x, normals, tris, mode, dmax, check4, strict, hint, false, scratch)
+    find_primary_bounded(x, normals, tris, mode, dmax, check4, strict, hint, false, scratch)
 }
 
-/// [`find_primary_hinted`] over bounds already in `scratch` ([`Scratch::fill_bounds`] for the
-/// same `x` and `tris`): for a caller that reads them first.
+/// [`find_primary_hinted`] with, where `filled`, the sphere bounds already in `scratch`
+/// ([`Scratch::fill_bounds`] for the same `x` and `tris`: for a caller that reads them first);
+/// otherwise each bound is computed where it is needed, and a triangle whose sphere is plainly
+/// out of reach is passed over without one. The same triangles are visited in the same order
+/// either way.
 #[allow(clippy::too_many_arguments)]
 pub fn find_primary_bounded(
-    x: DVec3,
-    normals: &[DVec3],
-    tris: &Tris,
-    mode: NormalMode,
-    dmax: f64,
-    check4: bool,
-    strict: bool,
-    hint: &[usize],
-    scratch: &mut Scratch,
-) -> Found {
-    debug_assert_eq!(scratch.bounds.len(), tris.len());
-    search(x, normals, tris, mode, dmax, check4, strict, hint, true, scratch)
-}
-
-/// The search of [`find_primary_bounded`] (`filled`: the sphere bounds are in `scratch`) and of
-/// [`find_primary_hinted`] (`!filled`: each bound is computed where it is needed, and a triangle
-/// whose sphere is plainly out of reach is passed over without one). The same triangles are
-/// visited in the same order either way.
-#[allow(clippy::too_many_arguments)]
-fn search(
     x: DVec3,
     normals: &[DVec3],
     tris: &Tris,
@@ -444,6 +427,7 @@ fn search(
     filled: bool,
     scratch: &mut Scratch,
 ) -> Found {
+    debug_assert!(!filled || scratch.bounds.len() == tris.len());
     let m = tris.len();
     let bound = |bounds: &[f64], t: usize| if filled { bounds[t] } else { sphere_lower_bound(x, tris.sphere[t].0, tris.sphere[t].1) };
     scratch.found.clear();
