@@ -2,7 +2,7 @@
 //! the decimator, the evaluators and the validator can carry it without depending on [`crate::gpu`].
 
 /// Why no GPU work could start.
-#[derive(Debug, thiserror::Error)]
+#[derive(Debug, thiserror::Error, serde::Serialize, serde::Deserialize)]
 pub enum GpuError {
     #[error("no GPU adapter for backends {backends}: {reason} (on Linux, install Mesa's lavapipe: apt-get install mesa-vulkan-drivers libvulkan1)")]
     NoAdapter { backends: String, reason: String },

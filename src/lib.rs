@@ -39,8 +39,9 @@ pub mod settings;
 pub mod topology;
 pub mod validate;
 
-/// Library errors. `Input` and `Usage` are the user's to fix (exit code 2).
-#[derive(Debug, thiserror::Error)]
+/// Library errors. `Input` and `Usage` are the user's to fix (exit code 2). Serializable: a
+/// bench run's process hands its error to the bench's (`app::bench::RunOutcome`).
+#[derive(Debug, thiserror::Error, serde::Serialize, serde::Deserialize)]
 pub enum Error {
     #[error("{path}: {msg}")]
     Input { path: String, msg: String },

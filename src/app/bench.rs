@@ -77,17 +77,10 @@ pub struct RunResult {
     pub peak_rss_mb: Option<f64>,
 }
 
-/// What `dispdec bench-run` writes: the run, or why it could not run (the error as the bench's
-/// own process reports it: a bad scan is an input error naming the file).
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub enum RunOutcome {
-    Done(RunResult),
-    /// No GPU work could start (the configuration is skipped, not failed).
-    NoGpu(String),
-    Input { path: String, msg: String },
-    Output { path: String, msg: String },
-    Usage(String),
-}
+/// What `dispdec bench-run` writes: the run, or the error it stopped with, as the bench's own
+/// process would report it (a bad scan is an input error naming the file; no GPU skips the
+/// configuration).
+pub type RunOutcome = Result<RunResult, Error>;
 
 /// One measured decimation (the body of `dispdec bench-run`): `input` → `output` in `config`,
 /// default options.
@@ -104,13 +97,7 @@ pub fn run_one(input: &Path, output: &Path, config: Config) -> RunOutcome {
         preparation: Default::default(),
         repaired: None,
     };
-    match decimate(&dj) {
-        Ok(r) => RunOutcome::Done(RunResult::of(&r)),
-        Err(Error::Gpu(e)) => RunOutcome::NoGpu(e.to_string()),
-        Err(Error::Input { path, msg }) => RunOutcome::Input { path, msg },
-        Err(Error::Output { path, msg }) => RunOutcome::Output { path, msg },
-        Err(Error::Usage(m)) => RunOutcome::Usage(m),
-    }
+    decimate(&dj).map(|r| RunResult::of(&r))
 }
 
 impl RunResult {
@@ -350,7 +337,7 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
                 let stem = Path::new(name).file_name().map_or_else(|| name.clone(), |f| f.to_string_lossy().into_owned());
                 let out = job.work.join(format!("{stem}-{config:?}.obj"));
                 match measure(job, &path, &out, config)? {
-                    RunOutcome::Done(r) => {
+                    Ok(r) => {
                         progress(&format!(
                             "{name} ({} faces), {}, run {}/{}: {} faces in {:.2} s, peak {}",
                             r.faces_in,
@@ -363,14 +350,12 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
                         ));
                         reports.push(r);
                     }
-                    RunOutcome::NoGpu(e) => {
+                    Err(Error::Gpu(e)) => {
                         skipped.push(format!("gpu: {e}"));
                         gpu_ok = false;
                         break;
                     }
-                    RunOutcome::Input { path, msg } => return Err(Error::Input { path, msg }),
-                    RunOutcome::Output { path, msg } => return Err(Error::Output { path, msg }),
-                    RunOutcome::Usage(m) => return Err(Error::Usage(m)),
+                    Err(e) => return Err(e),
                 }
             }
             if reports.is_empty() {

@@ -106,9 +106,8 @@ impl State {
             || (Scratch::default(), Vec::new(), usize::MAX),
             |(scratch, normals, last), i, x, pinched| {
                 self.dense.vertex_normals(c.dense[i], normals);
-                let strict = self.strict && !pinched;
-                if strict {
-                    return find_primary(x, normals, tris, self.mode, self.dmax, !pinched, true, scratch);
+                if self.strict && !pinched {
+                    return find_primary(x, normals, tris, self.mode, self.dmax, true, true, scratch);
                 }
                 // The previous vertex's triangle first (`c.order` keeps neighbours together): a
                 // first hit there leaves only the triangles within its |d| to bound.
