@@ -200,6 +200,44 @@ impl Topology {
         }
     }
 
+    /// The first outgoing half-edge of `v` that `pred` holds for, in the order of
+    /// [`Topology::outgoing`], without collecting them.
+    pub fn find_outgoing(&self, v: u32, mut pred: impl FnMut(u32) -> bool) -> Option<u32> {
+        let start = self.vert_he[v as usize];
+        if start == INVALID {
+            return None;
+        }
+        if pred(start) {
+            return Some(start);
+        }
+        let mut h = start;
+        loop {
+            let o = self.opp[prev(h) as usize];
+            if o == INVALID {
+                break;
+            }
+            if o == start {
+                return None; // closed fan
+            }
+            if pred(o) {
+                return Some(o);
+            }
+            h = o;
+        }
+        let mut h = start;
+        loop {
+            let o = self.opp[h as usize];
+            if o == INVALID {
+                return None;
+            }
+            let n = next(o);
+            if pred(n) {
+                return Some(n);
+            }
+            h = n;
+        }
+    }
+
     /// Whether `v` lies on a boundary.
     pub fn is_boundary_vertex(&self, v: u32, scratch: &mut Vec<u32>) -> bool {
         self.outgoing(v, scratch);

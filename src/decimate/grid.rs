@@ -8,6 +8,11 @@ use glam::DVec3;
 /// Why: late in a run a region spans a tenth of the model; 64 keeps its query to a few hundred cells.
 const DENSE_GRID_RESOLUTION: f64 = 64.0;
 
+/// Cells along each side of a block of the dense-vertex grid, the unit of its reach bounds.
+/// Why: 4 gives at most 16³ blocks (32 KB of bounds), fine enough that a query skips the
+/// blocks where every |d| is small, which late in a run is most of them.
+const REACH_BLOCK: usize = 4;
+
 /// Cells along the longest side of the face grid.
 /// Why: late in a run a base face spans a few cells; early faces share a cell with tens of others.
 const FACE_GRID_RESOLUTION: f64 = 32.0;
@@ -58,6 +63,11 @@ pub struct DenseGrid {
     frame: Frame,
     start: Vec<u32>,
     items: Vec<u32>,
+    /// Blocks of REACH_BLOCK³ cells along each axis.
+    block_dims: [usize; 3],
+    /// Per block, an upper bound of the reach its vertices were given ([`DenseGrid::raise_reach`]):
+    /// raised, never lowered.
+    block_reach: Vec<f64>,
 }
 
 impl DenseGrid {
@@ -77,7 +87,54 @@ impl DenseGrid {
             items[fill[c] as usize] = v as u32;
             fill[c] += 1;
         }
-        DenseGrid { frame, start, items }
+        let block_dims = frame.dims.map(|d| d.div_ceil(REACH_BLOCK));
+        let block_reach = vec![0.0; block_dims[0] * block_dims[1] * block_dims[2]];
+        DenseGrid { frame, start, items, block_dims, block_reach }
+    }
+
+    fn block_of(&self, c: [usize; 3]) -> usize {
+        let b = c.map(|k| k / REACH_BLOCK);
+        (b[2] * self.block_dims[1] + b[1]) * self.block_dims[0] + b[0]
+    }
+
+    /// Raises the reach bound of the block holding position `p` (a vertex's) to at least `r`.
+    pub fn raise_reach(&mut self, p: DVec3, r: f64) {
+        let b = self.block_of(self.frame.coords(p));
+        if !(self.block_reach[b] >= r) {
+            self.block_reach[b] = r;
+        }
+    }
+
+    /// Calls `f` for every vertex in the cells overlapping [lo − reach, hi + reach] except those
+    /// of blocks that lie at least their reach bound away from the box [lo, hi]: a vertex there
+    /// is no nearer the box than its raised reach (the f64 distance is monotone in each
+    /// coordinate, and a block's box holds its cells' vertices with a margin for the rounding
+    /// of the cell coordinates).
+    pub fn query_near(&self, lo: DVec3, hi: DVec3, reach: f64, mut f: impl FnMut(u32)) {
+        let r = DVec3::splat(reach);
+        let (a, b) = (self.frame.coords(lo - r), self.frame.coords(hi + r));
+        let side = self.frame.cell * REACH_BLOCK as f64;
+        let margin = 1e-6 * self.frame.cell;
+        for bz in a[2] / REACH_BLOCK..=b[2] / REACH_BLOCK {
+            for by in a[1] / REACH_BLOCK..=b[1] / REACH_BLOCK {
+                for bx in a[0] / REACH_BLOCK..=b[0] / REACH_BLOCK {
+                    let bi = [bx, by, bz];
+                    let blo = self.frame.lo + DVec3::from_array(bi.map(|k| k as f64)) * side - DVec3::splat(margin);
+                    let bhi = blo + DVec3::splat(side + 2.0 * margin);
+                    let gap = (lo - bhi).max(blo - hi).max(DVec3::ZERO);
+                    if gap.length() >= self.block_reach[(bz * self.block_dims[1] + by) * self.block_dims[0] + bx] {
+                        continue;
+                    }
+                    let c0 = [0, 1, 2].map(|k| a[k].max(bi[k] * REACH_BLOCK));
+                    let c1 = [0, 1, 2].map(|k| b[k].min(bi[k] * REACH_BLOCK + REACH_BLOCK - 1));
+                    self.frame.for_cells(c0, c1, |c| {
+                        for &v in &self.items[self.start[c] as usize..self.start[c + 1] as usize] {
+                            f(v);
+                        }
+                    });
+                }
+            }
+        }
     }
 
     /// Calls `f` for every vertex in the cells overlapping the box [lo, hi].
@@ -145,6 +202,43 @@ impl FaceGrid {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_near_query_skips_only_vertices_beyond_their_reach() {
+        // 4,000 points in a unit cube with reaches of 0.01 .. 0.05, and a few with 0.3 (the
+        // large |d| of a thin part): every query finds the same vertices within reach as the
+        // full query of the same box, and passes over most of the others.
+        let mut seed = 12345u64;
+        let mut rnd = move || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let pos: Vec<DVec3> = (0..4000).map(|_| DVec3::new(rnd(), rnd(), rnd())).collect();
+        let reach: Vec<f64> = (0..4000).map(|v| if v % 500 == 0 { 0.3 } else { 0.01 + 0.04 * rnd() }).collect();
+        let mut g = DenseGrid::new(&pos);
+        for (p, &r) in pos.iter().zip(&reach) {
+            g.raise_reach(*p, r);
+        }
+        let within = |lo: DVec3, hi: DVec3, v: u32| pos[v as usize].clamp(lo, hi).distance(pos[v as usize]) < reach[v as usize];
+        let (mut seen_all, mut seen_near) = (0, 0);
+        for q in 0..50 {
+            let c = DVec3::new(rnd(), rnd(), rnd());
+            let h = DVec3::splat(0.02 + 0.1 * (q % 5) as f64);
+            let (lo, hi) = (c - h, c + h);
+            let (mut all, mut near) = (Vec::new(), Vec::new());
+            g.query(lo - DVec3::splat(0.3), hi + DVec3::splat(0.3), |v| all.push(v));
+            g.query_near(lo, hi, 0.3, |v| near.push(v));
+            seen_all += all.len();
+            seen_near += near.len();
+            let mut a: Vec<u32> = all.into_iter().filter(|&v| within(lo, hi, v)).collect();
+            let mut b: Vec<u32> = near.into_iter().filter(|&v| within(lo, hi, v)).collect();
+            a.sort_unstable();
+            b.sort_unstable();
+            assert_eq!(a, b, "query {q}");
+        }
+        // Measured: 31,351 of the full queries' 93,858 vertices visited (33 %); 40 % allowed.
+        assert!(seen_near * 10 < seen_all * 4, "{seen_near} of {seen_all}");
+    }
 
     #[test]
     fn face_grid_tracks_moves() {

@@ -11,11 +11,11 @@
 use crate::decimate::{Candidate, State};
 use crate::guarantee::chunks::{chunk_count, run_to_first_failure};
 use super::outcome::{Accepted, Outcome, Rejected};
-use crate::guarantee::{check_faces, find_primary, CheckOut, find_primary_bounded, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
+use crate::guarantee::{check_faces, find_primary, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
 use crate::geometry::{face_cross, vertex_direction};
 use crate::decimate::stages::Stage;
 use std::time::Instant;
-use crate::topology::INVALID;
+use crate::topology::{face_of, INVALID};
 use glam::DVec3;
 
 impl State {
@@ -425,10 +425,10 @@ impl State {
                 hi = hi.max(q);
             }
         }
-        let (blo, bhi) = (lo - DVec3::splat(reach), hi + DVec3::splat(reach));
         let mut cand = Vec::new();
         let mut near = Vec::new();
-        self.grid.query(blo, bhi, |v| {
+        // Blocks of the grid whose every vertex lies beyond |d| + edge reach are passed over.
+        self.grid.query_near(lo, hi, reach, |v| {
             let dv = self.assoc[v as usize].d.abs();
             if self.dense.pinched[v as usize] || c.dense.binary_search(&v).is_ok() {
                 return;
@@ -528,7 +528,7 @@ impl MapContext for CandidateContext<'_> {
         if self.st.dense.pinched[v as usize] {
             return None;
         }
-        if let Ok(i) = self.c.dense.binary_search(&v) {
+        if let Some(i) = self.c.dense_index.get(&self.c.dense, v) {
             return Some(self.maps[i]);
         }
         match self.extras.binary_search_by_key(&v, |e| e.0) {
@@ -553,9 +553,12 @@ impl MapContext for CandidateContext<'_> {
         if v0 == self.c.w || self.c.changed.contains(&v0) || verts.contains(&self.c.w) {
             return None;
         }
-        let (mut s, mut fs) = (Vec::new(), Vec::new());
-        self.st.topo.faces_around(v0, &mut s, &mut fs);
-        fs.into_iter().find(|&f| holds(&self.st.topo.face(f)) && self.c.region.binary_search(&f).is_err())
+        let topo = &self.st.topo;
+        let h = topo.find_outgoing(v0, |h| {
+            let f = face_of(h);
+            holds(&topo.face(f)) && self.c.region.binary_search(&f).is_err()
+        });
+        h.map(face_of)
     }
     fn faces_around(&self, v: u32, out: &mut Vec<u32>) {
         out.clear();
@@ -630,15 +633,11 @@ impl MapContext for CandidateContext<'_> {
         let outer = self.outer.get_or_init(|| st.outer_faces(self.c, self.tris, self.faces, self.maps, self.extras));
         let search = |best: Option<Map>, far: &Tris, scratch: &mut Scratch| -> Option<Map> {
             let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
-            if !Scratch::any_within(x, far, reach) {
-                return best;
-            }
-            scratch.fill_bounds(x, far);
-            if scratch.record_within(far, reach) == 0 {
+            if scratch.record_within(x, far, reach) == 0 {
                 // No face there is within reach: the search would find nothing.
                 return best;
             }
-            pick(best, far, find_primary_bounded(x, normals, far, st.mode, reach.min(st.dmax), true, false, &hint(far), true, scratch))
+            pick(best, far, find_primary_hinted(x, normals, far, st.mode, reach.min(st.dmax), true, false, &hint(far), scratch))
         };
         best = search(best, &outer.tris, scratch);
         let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);

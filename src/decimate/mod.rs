@@ -15,6 +15,7 @@ pub use outcome::{Accepted, Evaluator, Outcome, Rejected};
 use crate::guarantee::{FaceInfo, FailAt, Map, NormalMode, Reject, Tris};
 use crate::geometry::{face_cross, vertex_direction};
 use crate::decimate::grid::{DenseGrid, FaceGrid};
+use crate::guarantee::ids::IdIndex;
 use crate::mesh::{DenseData, DenseMesh};
 use crate::topology::{face_of, Topology, INVALID};
 use glam::DVec3;
@@ -78,6 +79,8 @@ pub struct Candidate {
     pub changed: Vec<u32>,
     /// Dense vertices associated with the region, ascending.
     pub dense: Vec<u32>,
+    /// Place of each of `dense` (a check asks for their maps for every edge it walks).
+    pub dense_index: IdIndex,
     /// Indices into `dense`, in the order of the region's faces (neighbours fail together).
     pub order: Vec<u32>,
     /// Dense faces touching `dense`, ascending.
@@ -242,6 +245,7 @@ impl State {
             bary[k] = 1.0;
             st.assoc.push(Map { face: f, bary, d: 0.0 });
             st.face_dense.push(f, v);
+            st.grid.raise_reach(st.dense.pos[v as usize], 0.0 + st.edge_reach[v as usize]);
         }
         for h in 0..st.topo.corner.len() as u32 {
             let (a, b) = (st.topo.from(h), st.topo.to(h));
@@ -379,6 +383,7 @@ impl State {
             border,
             changed,
             dense: Vec::new(),
+            dense_index: IdIndex::default(),
             order: Vec::new(),
             dense_faces: Vec::new(),
             first_fail: self.fail_memo.get(&edge_key(u, w)).cloned().unwrap_or_default(),
@@ -399,9 +404,9 @@ impl State {
         let mut dense_faces: Vec<u32> = dense.iter().flat_map(|&v| dadj.faces_of(v).iter().copied()).collect();
         dense_faces.sort_unstable();
         dense_faces.dedup();
+        c.dense_index.build(&dense);
         c.dense = dense;
         c.dense_faces = dense_faces;
-
     }
 
     /// Vertices touched by a candidate (for picking independent sets): all vertices of its
@@ -516,6 +521,8 @@ impl State {
                 self.assoc[v as usize] = m;
                 self.face_dense.push(m.face, v);
                 self.max_abs_d = self.max_abs_d.max(m.d.abs());
+                // Moved vertices (`extras`, below) only come nearer: their bound holds.
+                self.grid.raise_reach(self.dense.pos[v as usize], m.d.abs() + self.edge_reach[v as usize]);
                 vmark[v as usize] = round;
             }
             for &(v, m) in &acc.extras {

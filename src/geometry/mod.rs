@@ -159,6 +159,15 @@ fn polish_root(c: &[f64; 4], mut lo: f64, mut hi: f64, flo: f64, fhi: f64) -> f6
 /// Robust where the cubic degenerates to a quadratic or a line (near-equal normals): the
 /// interval is split at the real roots of the derivative and each monotone piece is bracketed.
 pub fn cubic_roots_in_unit(c: &[f64; 4], out: &mut [f64; 3]) -> usize {
+    cubic_roots_in_unit_within(c, f64::INFINITY, out)
+}
+
+/// [`cubic_roots_in_unit`], where a monotone piece that lies wholly outside [-within, within]
+/// gets NaN in its root's place instead of a polished root: the same number of roots, in the
+/// same places, and each root inside that range exactly as [`cubic_roots_in_unit`] finds it.
+/// (A root is deduplicated against its predecessor when within 1e-9 of it: a caller that
+/// judges the roots against a range must leave that much margin beyond it.)
+pub fn cubic_roots_in_unit_within(c: &[f64; 4], within: f64, out: &mut [f64; 3]) -> usize {
     let scale = c.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     if scale == 0.0 || !scale.is_finite() {
         return 0;
@@ -177,13 +186,30 @@ pub fn cubic_roots_in_unit(c: &[f64; 4], out: &mut [f64; 3]) -> usize {
     }
     knots[nk] = 1.0;
     nk += 1;
+    // Each kept root, or (NaN here, its piece's bracket in `skipped`) for a piece outside the
+    // range. A root is merged into its predecessor within 1e-9 of it; where a skipped
+    // predecessor might be that near, it is polished after all, so that exactly the roots of
+    // the full search are kept.
     let mut n = 0usize;
-    let push = |r: f64, n: &mut usize, out: &mut [f64; 3]| {
-        if *n > 0 && (r - out[*n - 1]).abs() <= 1e-9 {
-            return;
+    let mut skipped: [Option<(f64, f64, f64, f64)>; 3] = [None; 3];
+    let resolve = |i: usize, out: &mut [f64; 3], skipped: &mut [Option<(f64, f64, f64, f64)>; 3]| {
+        if let Some((lo, hi, flo, fhi)) = skipped[i].take() {
+            out[i] = polish_root(&c, lo, hi, flo, fhi);
+        }
+    };
+    // Pushes root r (ascending: r ≥ every root before it).
+    let push = |r: f64, n: &mut usize, out: &mut [f64; 3], skipped: &mut [Option<(f64, f64, f64, f64)>; 3]| {
+        if *n > 0 {
+            if skipped[*n - 1].is_some_and(|p| r - p.1 <= 1e-9) {
+                resolve(*n - 1, out, skipped);
+            }
+            if skipped[*n - 1].is_none() && (r - out[*n - 1]).abs() <= 1e-9 {
+                return;
+            }
         }
         if *n < 3 {
             out[*n] = r;
+            skipped[*n] = None;
             *n += 1;
         }
     };
@@ -195,15 +221,29 @@ pub fn cubic_roots_in_unit(c: &[f64; 4], out: &mut [f64; 3]) -> usize {
         f_prev = fhi;
         if k > 0 && flo.abs() <= TANGENT_TOL && flo != 0.0 {
             // Tangential contact at an interior critical point (a double root).
-            push(lo, &mut n, out);
+            push(lo, &mut n, out, &mut skipped);
         }
         if flo == 0.0 {
-            push(lo, &mut n, out);
+            push(lo, &mut n, out, &mut skipped);
             continue;
         }
         if (flo < 0.0) != (fhi < 0.0) || fhi == 0.0 {
-            let r = polish_root(&c, lo, hi, flo, fhi);
-            push(r, &mut n, out);
+            let outside = lo > within || hi < -within;
+            let prev_hi = match n {
+                0 => f64::NEG_INFINITY,
+                _ => skipped[n - 1].map_or(out[n - 1], |p| p.1),
+            };
+            if outside && lo - prev_hi > 1e-9 {
+                // Its root, whatever it is, is kept: a place held, not polished.
+                if n < 3 {
+                    out[n] = f64::NAN;
+                    skipped[n] = Some((lo, hi, flo, fhi));
+                    n += 1;
+                }
+            } else {
+                let r = polish_root(&c, lo, hi, flo, fhi);
+                push(r, &mut n, out, &mut skipped);
+            }
         }
     }
     n
@@ -228,14 +268,30 @@ pub fn barycentric(x: DVec3, q0: DVec3, q1: DVec3, q2: DVec3) -> Option<[f64; 3]
 /// The shell inversion (SPEC §1): every `(d, bary)` with |d| ≤ dmax such that
 /// `x = X + d·N(X)` on triangle (p, n), with all barycentrics ≥ −BARY_EPS.
 pub fn solve_shell(x: DVec3, p: &[DVec3; 3], n: &[DVec3; 3], dmax: f64) -> Hits {
+    solve_shell_within(x, p, n, dmax, f64::INFINITY)
+}
+
+/// How far beyond a search's reach (relative to dmax) a root is still polished. Why: roots
+/// within 1e-9·dmax of each other are merged ([`cubic_roots_in_unit`]), so a root just beyond
+/// reach can decide whether one just inside is kept; 4e-9 covers that and the rounding of d.
+pub const WITHIN_MARGIN_REL: f64 = 4e-9;
+
+/// [`solve_shell`], leaving out the solutions with |d| > `within` (+ WITHIN_MARGIN_REL·dmax):
+/// their roots are not polished. Every solution it returns is one [`solve_shell`] returns, and
+/// it returns every one with |d| ≤ `within`, bit for bit: for a search that keeps only
+/// solutions within its reach.
+pub fn solve_shell_within(x: DVec3, p: &[DVec3; 3], n: &[DVec3; 3], dmax: f64, within: f64) -> Hits {
     let mut hits = Hits::default();
     let c = cubic_coeffs(x, p, n);
     // Substitute d = dmax·t so that the search interval is t ∈ [-1, 1].
     let s = dmax;
     let ct = [c[0], c[1] * s, c[2] * s * s, c[3] * s * s * s];
     let mut roots = [0.0f64; 3];
-    let nr = cubic_roots_in_unit(&ct, &mut roots);
+    let nr = cubic_roots_in_unit_within(&ct, within / s + WITHIN_MARGIN_REL, &mut roots);
     for &t in &roots[..nr] {
+        if t.is_nan() {
+            continue;
+        }
         let d = t * s;
         let q0 = p[0] + d * n[0];
         let q1 = p[1] + d * n[1];
@@ -505,6 +561,56 @@ mod tests {
         let x = DVec3::new(0.5, 0.5, 0.1);
         assert_eq!(solve_shell(x, &[p1, p2, p3], &n, 1.0).n, 1);
         assert_eq!(solve_shell(x, &[p2, p4, p3], &n, 1.0).n, 1);
+    }
+
+    #[test]
+    fn roots_within_a_range_are_the_full_search_roots_bit_for_bit() {
+        // Cubics with roots spread, clustered (within 1e-9: merged), doubled (tangent) and near
+        // the ends of the range; every range. Each root inside the range is the full search's
+        // to the bit, in the same place; a root left out lies outside the range.
+        let mut seed = 99u64;
+        let mut rnd = move || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut left_out, mut kept) = (0, 0);
+        for case in 0..20_000 {
+            let r1 = 2.0 * rnd() - 1.0;
+            let r2 = match case % 4 {
+                0 => 2.0 * rnd() - 1.0,
+                1 => r1 + 1e-9 * (2.0 * rnd() - 1.0),
+                2 => r1,
+                _ => r1 + 1e-3 * rnd(),
+            };
+            let r3 = if case % 3 == 0 { r2 + 2e-9 * rnd() } else { 3.0 * rnd() - 1.5 };
+            let a = 0.5 + rnd();
+            // a(t − r1)(t − r2)(t − r3)
+            let (s1, s2, s3) = (r1 + r2 + r3, r1 * r2 + r1 * r3 + r2 * r3, r1 * r2 * r3);
+            let c = [-a * s3, a * s2, -a * s1, a];
+            let mut full = [0.0; 3];
+            let nf = cubic_roots_in_unit(&c, &mut full);
+            let within = match case % 5 {
+                0 => r1.abs(),
+                1 => r2.abs() + 5e-10,
+                2 => 1.5 * rnd(),
+                3 => 0.0,
+                _ => r3.abs() - 1e-10,
+            };
+            let mut part = [0.0; 3];
+            let np = cubic_roots_in_unit_within(&c, within, &mut part);
+            assert_eq!(np, nf, "case {case}: {c:?}");
+            for i in 0..nf {
+                if part[i].is_nan() {
+                    assert!(full[i].abs() > within, "case {case}: root {} left out, range {within}", full[i]);
+                    left_out += 1;
+                } else {
+                    assert_eq!(part[i].to_bits(), full[i].to_bits(), "case {case}: {c:?}");
+                    kept += 1;
+                }
+            }
+        }
+        // Measured: 6,576 roots left out, 39,725 kept (bounds 10 % below).
+        assert!(left_out > 5_900 && kept > 35_700, "{left_out} left out, {kept} kept");
     }
 
     fn oracle_roots(x: DVec3, p: &[DVec3; 3], n: &[DVec3; 3], dmax: f64) -> Vec<f64> {

@@ -493,7 +493,7 @@ pub fn polygon_positive(pts: &[DVec2]) -> bool {
 /// loop of positive signed area in an intrinsic chart of the base, and which chart decided it.
 /// `None`: no chart holds the loop (its consecutive samples' faces neither share an edge nor lie
 /// in one star); the caller decides.
-pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample]) -> Option<(bool, Chart)> {
+pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample], stars: &mut StarCache) -> Option<(bool, Chart)> {
     let mut faces: Vec<u32> = lp.iter().map(|s| s.m.face).collect();
     faces.sort_unstable();
     faces.dedup();
@@ -523,8 +523,8 @@ pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample]) -> Option<(bool, Cha
         }
     }
     if let Some((_, w, _)) = best {
-        if let Some(pts) = star_chart(ctx, w, lp) {
-                return Some((polygon_positive(&pts), Chart::Star));
+        if let Some(pts) = stars.get(ctx, w).and_then(|star| star_chart(ctx, star, w, lp)) {
+            return Some((polygon_positive(&pts), Chart::Star));
         }
     }
     chain_chart(ctx, lp).map(|pts| (polygon_positive(&pts), Chart::Chain))
@@ -593,22 +593,28 @@ fn ordered_fan<C: MapContext>(ctx: &C, w: u32) -> Option<(Vec<u32>, bool)> {
     Some((order.into_iter().map(|i| fan[i]).collect(), closed))
 }
 
-/// The loop in the polar chart of vertex `w`: a point at distance r from w, at angle θ from the
-/// fan's first edge (angles summed face by face around w), goes to r·(cos cθ, sin cθ), with
-/// c = 2π / (angle sum) around an interior vertex (continuous all the way round) and
-/// c = min(1, 1.5π / angle sum) at a boundary vertex. The map is one-to-one and
-/// orientation-preserving on the star, so a loop in it is simple and positive exactly when it
-/// is so on L.
-fn star_chart<C: MapContext>(ctx: &C, w: u32, lp: &[Sample]) -> Option<Vec<DVec2>> {
+/// One face of a base vertex's fan as the polar chart lays it out.
+struct Wedge {
+    face: u32,
+    pw: DVec3,
+    e1: DVec3,
+    n: DVec3,
+    angle: f64,
+    start: f64,
+}
+
+/// The fan of a base vertex, laid out for [`star_chart`]: its wedges in fan order with their
+/// angles summed, and whether the fan closes. The same for every loop around the vertex within
+/// one check, so [`StarCache`] keeps it.
+struct Star {
+    wedges: Vec<Wedge>,
+    total: f64,
+    closed: bool,
+}
+
+/// The fan of `w` laid out (`None` around a non-manifold vertex, or a fan of no angle).
+fn star_of<C: MapContext>(ctx: &C, w: u32) -> Option<Star> {
     let (fan, closed) = ordered_fan(ctx, w)?;
-    struct Wedge {
-        face: u32,
-        pw: DVec3,
-        e1: DVec3,
-        n: DVec3,
-        angle: f64,
-        start: f64,
-    }
     let mut wedges: Vec<Wedge> = Vec::with_capacity(fan.len());
     for &f in &fan {
         let info = ctx.face_info(f);
@@ -619,15 +625,36 @@ fn star_chart<C: MapContext>(ctx: &C, w: u32, lp: &[Sample]) -> Option<Vec<DVec2
         let angle = ua.cross(ub).length().atan2(ua.dot(ub));
         wedges.push(Wedge { face: f, pw, e1: ua.normalize_or_zero(), n, angle, start: 0.0 });
     }
-    let order: Vec<usize> = (0..wedges.len()).collect();
     let mut total = 0.0;
-    for &i in &order {
-        wedges[i].start = total;
-        total += wedges[i].angle;
+    for wg in &mut wedges {
+        wg.start = total;
+        total += wg.angle;
     }
-    if !(total > 0.0) {
-        return None;
+    (total > 0.0).then_some(Star { wedges, total, closed })
+}
+
+/// The stars laid out so far, by base vertex. Valid for one [`MapContext`] (one candidate's
+/// check, one validation): a scratch that holds it is never handed to another context.
+#[derive(Default)]
+pub struct StarCache {
+    index: std::collections::HashMap<u32, Option<Star>>,
+}
+
+impl StarCache {
+    fn get<C: MapContext>(&mut self, ctx: &C, w: u32) -> Option<&Star> {
+        self.index.entry(w).or_insert_with(|| star_of(ctx, w)).as_ref()
     }
+}
+
+/// The loop in the polar chart of vertex `w`: a point at distance r from w, at angle θ from the
+/// fan's first edge (angles summed face by face around w), goes to r·(cos cθ, sin cθ), with
+/// c = 2π / (angle sum) around an interior vertex (continuous all the way round) and
+/// c = min(1, 1.5π / angle sum) at a boundary vertex. The map is one-to-one and
+/// orientation-preserving on the star, so a loop in it is simple and positive exactly when it
+/// is so on L.
+fn star_chart<C: MapContext>(ctx: &C, star: &Star, w: u32, lp: &[Sample]) -> Option<Vec<DVec2>> {
+    let Star { wedges, total, closed } = star;
+    let (total, closed) = (*total, *closed);
     // Polar coordinates (r, θ) of every sample, θ summed face by face from the fan's start.
     let mut polar: Vec<(f64, f64)> = Vec::with_capacity(lp.len());
     for s in lp {
@@ -974,6 +1001,8 @@ pub struct CheckScratch {
     normals: Vec<DVec3>,
     edge: Vec<Sample>,
     lp: Vec<Sample>,
+    /// Stars laid out for orientation charts: a scratch serves one context only.
+    stars: StarCache,
 }
 
 impl CheckScratch {
@@ -1019,7 +1048,7 @@ pub fn check_face<C: MapContext>(
     }
     let snap = SNAP_REL * (0..3).map(|k| dense.pos[fv[k] as usize].distance(dense.pos[fv[(k + 1) % 3] as usize])).fold(0.0, f64::max);
     snap_to_vertices(ctx, &mut sc.lp, snap);
-    let mut verdict = loop_positive(ctx, &sc.lp);
+    let mut verdict = loop_positive(ctx, &sc.lp, &mut sc.stars);
     // A negative verdict is confirmed on finer loops: chords between coarse samples can cross a
     // finely sampled neighbouring edge where the image is a thin spike; a true flip stays.
     for &depth in &REFINE_DEPTHS {
@@ -1030,7 +1059,7 @@ pub fn check_face<C: MapContext>(
             return FaceCheck::Torn;
         }
         snap_to_vertices(ctx, &mut sc.lp, snap);
-        verdict = loop_positive(ctx, &sc.lp);
+        verdict = loop_positive(ctx, &sc.lp, &mut sc.stars);
     }
     let positive = match verdict {
         Some((pos, chart)) => {

@@ -3,10 +3,11 @@
 //! re-check, the validator and the GPU's f64 settling.
 
 use crate::geometry::{
-    self, condition4, interpolate_direction, solve_constant, solve_shell, sphere_lower_bound, triangle_distance,
+    self, condition4, interpolate_direction, solve_constant, sphere_lower_bound, triangle_distance,
     triangle_sphere,
     ShellHit,
 };
+use super::ids::IdIndex;
 use glam::DVec3;
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -133,16 +134,14 @@ pub struct Tris {
     pub slope: Vec<(DVec3, f64, f64)>,
     /// Per triangle, how its directions lean across its edges: [`lean_lower_bound`].
     pub lean: Vec<Lean>,
-    /// (face id, index) sorted by id, for lookups; rebuilt by [`Tris::finish`].
-    lookup: Vec<(u32, u32)>,
+    /// Face id → index; rebuilt by [`Tris::finish`] (a push after it makes it stale).
+    lookup: IdIndex,
 }
 
 impl Tris {
     /// Builds the id lookup; call after the last push.
     pub fn finish(&mut self) {
-        self.lookup.clear();
-        self.lookup.extend(self.ids.iter().enumerate().map(|(i, &f)| (f, i as u32)));
-        self.lookup.sort_unstable();
+        self.lookup.build(&self.ids);
     }
     pub fn clear(&mut self) {
         self.ids.clear();
@@ -174,10 +173,7 @@ impl Tris {
     }
     /// Index of base face `face` in these triangles (after [`Tris::finish`]).
     pub fn index_of(&self, face: u32) -> Option<usize> {
-        if self.lookup.len() != self.ids.len() {
-            return self.ids.iter().position(|&f| f == face);
-        }
-        self.lookup.binary_search_by_key(&face, |e| e.0).ok().map(|i| self.lookup[i].1 as usize)
+        self.lookup.get(&self.ids, face)
     }
 }
 
@@ -274,8 +270,15 @@ pub fn lean_lower_bound(x: DVec3, tris: &Tris, t: usize, dmax: f64) -> f64 {
 /// Solves one triangle of the neighbourhood in the given mode.
 #[inline]
 pub fn solve_tri(x: DVec3, tris: &Tris, t: usize, mode: NormalMode, dmax: f64) -> geometry::Hits {
+    solve_tri_within(x, tris, t, mode, dmax, f64::INFINITY)
+}
+
+/// [`solve_tri`] for a search that keeps only solutions with |d| ≤ `within`: those are all
+/// found, bit for bit; of the others, some are left out ([`geometry::solve_shell_within`]).
+#[inline]
+pub fn solve_tri_within(x: DVec3, tris: &Tris, t: usize, mode: NormalMode, dmax: f64, within: f64) -> geometry::Hits {
     match mode {
-        NormalMode::Interpolated => solve_shell(x, &tris.pos[t], &tris.dir[t], dmax),
+        NormalMode::Interpolated => geometry::solve_shell_within(x, &tris.pos[t], &tris.dir[t], dmax, within),
         NormalMode::Constant => solve_constant(x, &tris.pos[t], dmax),
     }
 }
@@ -309,7 +312,6 @@ fn from_order_key(key: i64) -> f64 {
 /// Reusable per-thread scratch space.
 #[derive(Default)]
 pub struct Scratch {
-    bounds: Vec<f64>,
     /// Triangles within reach by (bound, index), smallest first.
     order: BinaryHeap<Reverse<(i64, u32)>>,
     found: Vec<DVec3>,
@@ -322,32 +324,23 @@ pub struct Scratch {
     read_bits: Vec<u64>,
 }
 
+/// Whether the sphere (c, r) lies plainly beyond `reach` of `x`: |x − c| > (reach + r)·(1 +
+/// 1e-9), a squared distance with no square root, so that the sphere bound exceeds reach
+/// whatever its rounding. Most triangles of a search are passed over by this alone.
+#[inline]
+fn beyond_sphere(x: DVec3, (c, r): (DVec3, f64), reach: f64) -> bool {
+    let lim = (reach + r) * (1.0 + 1e-9);
+    (x - c).length_squared() > lim * lim
+}
+
 impl Scratch {
-    /// The sphere lower bound on |x − X| of every triangle of `tris` (the first cull of a
-    /// search), kept for [`find_primary_bounded`].
-    pub fn fill_bounds(&mut self, x: DVec3, tris: &Tris) -> &[f64] {
-        self.bounds.clear();
-        self.bounds.extend((0..tris.len()).map(|t| sphere_lower_bound(x, tris.sphere[t].0, tris.sphere[t].1)));
-        &self.bounds
-    }
-
-    /// Whether some triangle of `tris` may have its sphere bound within `reach` of `x`: false
-    /// only where [`Scratch::fill_bounds`] and [`Scratch::record_within`] would find none (a
-    /// squared distance against (reach + radius)·(1 + 1e-9), no square root: most points of
-    /// a check have no face of the outer set within reach).
-    pub fn any_within(x: DVec3, tris: &Tris, reach: f64) -> bool {
-        tris.sphere.iter().any(|&(c, r)| {
-            let lim = (reach + r) * (1.0 + 1e-9);
-            !((x - c).length_squared() > lim * lim)
-        })
-    }
-
-    /// After [`Scratch::fill_bounds`] over `tris`: records in the read record ([`Scratch::take_reads`]) the faces whose
-    /// bound is within `reach`, and returns how many there were.
-    pub fn record_within(&mut self, tris: &Tris, reach: f64) -> usize {
+    /// Records in the read record ([`Scratch::take_reads`]) the faces of `tris` whose sphere
+    /// bound from `x` is within `reach`, and returns how many there were (0: a search of `tris`
+    /// within that reach finds nothing).
+    pub fn record_within(&mut self, x: DVec3, tris: &Tris, reach: f64) -> usize {
         let mut within = 0;
-        for (&b, &f) in self.bounds.iter().zip(&tris.ids) {
-            if b > reach {
+        for (&sphere, &f) in tris.sphere.iter().zip(&tris.ids) {
+            if beyond_sphere(x, sphere, reach) || sphere_lower_bound(x, sphere.0, sphere.1) > reach {
                 continue;
             }
             within += 1;
@@ -393,7 +386,9 @@ pub fn find_primary(
 }
 
 /// [`find_primary`], visiting the triangles `hint` first (a bisection midpoint's ends' faces):
-/// a good first hit culls the rest by their bounds. The answer is the same with any hint.
+/// a good first hit culls the rest by their bounds. The answer is the same with any hint. Each
+/// sphere bound is computed where it is needed: a triangle whose sphere is plainly out of
+/// reach (a squared distance) is passed over without one.
 #[allow(clippy::too_many_arguments)]
 pub fn find_primary_hinted(
     x: DVec3,
@@ -406,30 +401,8 @@ pub fn find_primary_hinted(
     hint: &[usize],
     scratch: &mut Scratch,
 ) -> Found {
-    find_primary_bounded(x, normals, tris, mode, dmax, check4, strict, hint, false, scratch)
-}
-
-/// [`find_primary_hinted`] with, where `filled`, the sphere bounds already in `scratch`
-/// ([`Scratch::fill_bounds`] for the same `x` and `tris`: for a caller that reads them first);
-/// otherwise each bound is computed where it is needed, and a triangle whose sphere is plainly
-/// out of reach is passed over without one. The same triangles are visited in the same order
-/// either way.
-#[allow(clippy::too_many_arguments)]
-pub fn find_primary_bounded(
-    x: DVec3,
-    normals: &[DVec3],
-    tris: &Tris,
-    mode: NormalMode,
-    dmax: f64,
-    check4: bool,
-    strict: bool,
-    hint: &[usize],
-    filled: bool,
-    scratch: &mut Scratch,
-) -> Found {
-    debug_assert!(!filled || scratch.bounds.len() == tris.len());
     let m = tris.len();
-    let bound = |bounds: &[f64], t: usize| if filled { bounds[t] } else { sphere_lower_bound(x, tris.sphere[t].0, tris.sphere[t].1) };
+    let bound = |t: usize| sphere_lower_bound(x, tris.sphere[t].0, tris.sphere[t].1);
     scratch.found.clear();
     let mut best: Option<(usize, ShellHit)> = None;
     let tie = SAME_SOLUTION_REL * dmax;
@@ -444,7 +417,8 @@ pub fn find_primary_bounded(
         if (mode == NormalMode::Interpolated && lean_lower_bound(x, tris, ti, dmax) > reach) || shell_lower_bound(x, tris, ti, mode) > reach {
             return;
         }
-        for h in solve_tri(x, tris, ti, mode, dmax).iter() {
+        // Solutions beyond reach are never better (strict: reach is dmax, every one counts).
+        for h in solve_tri_within(x, tris, ti, mode, dmax, reach).iter() {
             if check4 && !condition4(direction_at(tris, ti, &h, mode), normals.iter().copied()) {
                 continue;
             }
@@ -472,7 +446,7 @@ pub fn find_primary_bounded(
         if ti >= m || hinted(ti, i) {
             continue; // a repeated hint
         }
-        let tb = bound(&scratch.bounds, ti);
+        let tb = bound(ti);
         if !tb.is_finite() {
             continue;
         }
@@ -491,17 +465,10 @@ pub fn find_primary_bounded(
     let mut order = std::mem::take(&mut scratch.order).into_vec();
     order.clear();
     for t in 0..m {
-        let b = if filled {
-            scratch.bounds[t]
-        } else {
-            // |x − c| > (reach + r)·(1 + 1e-9): the bound exceeds reach, whatever its rounding.
-            let (c, r) = tris.sphere[t];
-            let lim = (reach + r) * (1.0 + 1e-9);
-            if (x - c).length_squared() > lim * lim {
-                continue;
-            }
-            bound(&scratch.bounds, t)
-        };
+        if beyond_sphere(x, tris.sphere[t], reach) {
+            continue;
+        }
+        let b = bound(t);
         if b <= reach && !hinted(t, hint.len()) {
             order.push(Reverse((total_order_key(b), t as u32)));
         }
@@ -569,29 +536,36 @@ mod tests {
         tris.finish();
         let mut sc = Scratch::default();
         let x = DVec3::new(0.5, 0.2, 0.0);
-        sc.fill_bounds(x, &tris);
         // Sphere bounds 0, 0.10 and 1.09: reach 0.6 takes faces 7 and 130, not 64.
-        assert_eq!(sc.record_within(&tris, 0.6), 2);
+        assert_eq!(sc.record_within(x, &tris, 0.6), 2);
         // The same search again reads the same faces: counted, not listed twice.
-        assert_eq!(sc.record_within(&tris, 0.6), 2);
-        assert_eq!(sc.record_within(&tris, 10.0), 3);
+        assert_eq!(sc.record_within(x, &tris, 0.6), 2);
+        assert_eq!(sc.record_within(x, &tris, 10.0), 3);
         assert_eq!(sc.take_reads(), vec![7, 130, 64]);
         // Taken: the record starts empty and lists them again.
         assert!(sc.take_reads().is_empty());
-        sc.fill_bounds(x, &tris);
-        assert_eq!(sc.record_within(&tris, 0.6), 2);
+        assert_eq!(sc.record_within(x, &tris, 0.6), 2);
         assert_eq!(sc.take_reads(), vec![7, 130]);
-        // The square-root-free pre-test says "none" exactly where the record finds none,
-        // also at the edge of reach (face 64's bound is 1.0869...).
+        // The square-root-free pre-test passes over a face exactly where its bound is beyond
+        // reach, also at the edge of reach (face 64's bound is 1.0928...).
         let b64 = crate::geometry::sphere_lower_bound(x, tris.sphere[2].0, tris.sphere[2].1);
-        let far = Tris { ids: vec![64], verts: vec![tris.verts[2]], pos: vec![tris.pos[2]], dir: vec![tris.dir[2]], sphere: vec![tris.sphere[2]], slope: vec![tris.slope[2]], lean: vec![tris.lean[2]], lookup: Vec::new() };
+        assert!((b64 - 1.0928).abs() < 1e-3, "{b64}");
+        let mut far = Tris::default();
+        far.push(64, tris.verts[2], tris.pos[2], tris.dir[2]);
+        far.finish();
         for reach in [0.5, b64 * (1.0 - 1e-12), b64, b64 * (1.0 + 1e-12), 2.0] {
-            sc.fill_bounds(x, &far);
-            let n = sc.record_within(&far, reach);
-            sc.take_reads();
-            assert!(Scratch::any_within(x, &far, reach) || n == 0, "reach {reach}: the pre-test missed a face");
-            assert_eq!(Scratch::any_within(x, &far, reach), reach > 1.0, "reach {reach}");
+            let n = sc.record_within(x, &far, reach);
+            assert_eq!(n, usize::from(b64 <= reach), "reach {reach}");
+            assert_eq!(sc.take_reads().len(), n);
+            assert_eq!(super::beyond_sphere(x, far.sphere[0], reach), reach < 1.0, "reach {reach}");
         }
+        // The lookup by face id: every id, and none of the others.
+        for (i, id) in [7u32, 130, 64].into_iter().enumerate() {
+            assert_eq!(tris.index_of(id), Some(i));
+        }
+        assert_eq!(tris.index_of(8), None);
+        assert_eq!(far.index_of(64), Some(0));
+        assert_eq!(far.index_of(7), None);
     }
 
     #[test]
