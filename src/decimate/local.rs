@@ -10,6 +10,7 @@
 
 use crate::decimate::{Candidate, State};
 use crate::guarantee::chunks::{chunk_count, run_to_first_failure};
+use crate::guarantee::ids::IdIndex;
 use super::outcome::{Accepted, Outcome, Rejected};
 use crate::guarantee::{check_faces, find_primary, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
 use crate::geometry::{face_cross, vertex_direction};
@@ -232,9 +233,15 @@ impl State {
         }
         edges.sort_unstable();
         edges.dedup();
+        // Where each of the candidate's dense vertices sits (its map is asked for at every
+        // edge the check walks); built per check, so that only the candidates being checked
+        // hold one.
+        let mut dense_index = IdIndex::default();
+        dense_index.build(&c.dense);
         let ctx = CandidateContext {
             st: self,
             c,
+            dense_index,
             tris,
             faces: &faces,
             outer: std::sync::OnceLock::new(),
@@ -515,6 +522,8 @@ struct Outer {
 struct CandidateContext<'a> {
     st: &'a State,
     c: &'a Candidate,
+    /// Place of each of `c.dense`.
+    dense_index: IdIndex,
     tris: &'a Tris,
     /// The dense faces checked.
     faces: &'a [u32],
@@ -528,7 +537,7 @@ impl MapContext for CandidateContext<'_> {
         if self.st.dense.pinched[v as usize] {
             return None;
         }
-        if let Some(i) = self.c.dense_index.get(&self.c.dense, v) {
+        if let Some(i) = self.dense_index.get(&self.c.dense, v) {
             return Some(self.maps[i]);
         }
         match self.extras.binary_search_by_key(&v, |e| e.0) {

@@ -15,7 +15,6 @@ pub use outcome::{Accepted, Evaluator, Outcome, Rejected};
 use crate::guarantee::{FaceInfo, FailAt, Map, NormalMode, Reject, Tris};
 use crate::geometry::{face_cross, vertex_direction};
 use crate::decimate::grid::{DenseGrid, FaceGrid};
-use crate::guarantee::ids::IdIndex;
 use crate::mesh::{DenseData, DenseMesh};
 use crate::topology::{face_of, Topology, INVALID};
 use glam::DVec3;
@@ -79,8 +78,6 @@ pub struct Candidate {
     pub changed: Vec<u32>,
     /// Dense vertices associated with the region, ascending.
     pub dense: Vec<u32>,
-    /// Place of each of `dense` (a check asks for their maps for every edge it walks).
-    pub dense_index: IdIndex,
     /// Indices into `dense`, in the order of the region's faces (neighbours fail together).
     pub order: Vec<u32>,
     /// Dense faces touching `dense`, ascending.
@@ -383,7 +380,6 @@ impl State {
             border,
             changed,
             dense: Vec::new(),
-            dense_index: IdIndex::default(),
             order: Vec::new(),
             dense_faces: Vec::new(),
             first_fail: self.fail_memo.get(&edge_key(u, w)).cloned().unwrap_or_default(),
@@ -404,7 +400,6 @@ impl State {
         let mut dense_faces: Vec<u32> = dense.iter().flat_map(|&v| dadj.faces_of(v).iter().copied()).collect();
         dense_faces.sort_unstable();
         dense_faces.dedup();
-        c.dense_index.build(&dense);
         c.dense = dense;
         c.dense_faces = dense_faces;
     }
