@@ -169,35 +169,10 @@ impl Topology {
     /// The outgoing half-edges of `v`, walking the fan both ways from `vert_he[v]`.
     pub fn outgoing(&self, v: u32, out: &mut Vec<u32>) {
         out.clear();
-        let start = self.vert_he[v as usize];
-        if start == INVALID {
-            return;
-        }
-        out.push(start);
-        // Forward: rot(h) = opp(prev(h)).
-        let mut h = start;
-        loop {
-            let o = self.opp[prev(h) as usize];
-            if o == INVALID {
-                break;
-            }
-            if o == start {
-                return; // closed fan
-            }
-            out.push(o);
-            h = o;
-        }
-        // Hit a boundary: walk backwards from start: rot_back(h) = next(opp(h)).
-        let mut h = start;
-        loop {
-            let o = self.opp[h as usize];
-            if o == INVALID {
-                break;
-            }
-            let n = next(o);
-            out.push(n);
-            h = n;
-        }
+        self.find_outgoing(v, |h| {
+            out.push(h);
+            false
+        });
     }
 
     /// The first outgoing half-edge of `v` that `pred` holds for, in the order of
@@ -210,6 +185,7 @@ impl Topology {
         if pred(start) {
             return Some(start);
         }
+        // Forward: rot(h) = opp(prev(h)).
         let mut h = start;
         loop {
             let o = self.opp[prev(h) as usize];
@@ -224,6 +200,7 @@ impl Topology {
             }
             h = o;
         }
+        // Hit a boundary: walk backwards from start: rot_back(h) = next(opp(h)).
         let mut h = start;
         loop {
             let o = self.opp[h as usize];

@@ -208,11 +208,8 @@ mod tests {
         // 4,000 points in a unit cube with reaches of 0.01 .. 0.05, and a few with 0.3 (the
         // large |d| of a thin part): every query finds the same vertices within reach as the
         // full query of the same box, and passes over most of the others.
-        let mut seed = 12345u64;
-        let mut rnd = move || {
-            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::geometry::testing::Rng(12345);
+        let mut rnd = move || rng.next();
         let pos: Vec<DVec3> = (0..4000).map(|_| DVec3::new(rnd(), rnd(), rnd())).collect();
         let reach: Vec<f64> = (0..4000).map(|v| if v % 500 == 0 { 0.3 } else { 0.01 + 0.04 * rnd() }).collect();
         let mut g = DenseGrid::new(&pos);
@@ -236,7 +233,7 @@ mod tests {
             b.sort_unstable();
             assert_eq!(a, b, "query {q}");
         }
-        // Measured: 31,351 of the full queries' 93,858 vertices visited (33 %); 40 % allowed.
+        // Measured: 30,363 of the full queries' 91,691 vertices visited (33 %); 40 % allowed.
         assert!(seen_near * 10 < seen_all * 4, "{seen_near} of {seen_all}");
     }
 
