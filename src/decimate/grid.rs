@@ -92,8 +92,12 @@ impl DenseGrid {
         DenseGrid { frame, start, items, block_dims, block_reach }
     }
 
+    /// The block holding cell `c`.
     fn block_of(&self, c: [usize; 3]) -> usize {
-        let b = c.map(|k| k / REACH_BLOCK);
+        self.block_index(c.map(|k| k / REACH_BLOCK))
+    }
+
+    fn block_index(&self, b: [usize; 3]) -> usize {
         (b[2] * self.block_dims[1] + b[1]) * self.block_dims[0] + b[0]
     }
 
@@ -122,24 +126,25 @@ impl DenseGrid {
                     let blo = self.frame.lo + DVec3::from_array(bi.map(|k| k as f64)) * side - DVec3::splat(margin);
                     let bhi = blo + DVec3::splat(side + 2.0 * margin);
                     let gap = (lo - bhi).max(blo - hi).max(DVec3::ZERO);
-                    if gap.length() >= self.block_reach[(bz * self.block_dims[1] + by) * self.block_dims[0] + bx] {
+                    if gap.length() >= self.block_reach[self.block_index(bi)] {
                         continue;
                     }
                     let c0 = [0, 1, 2].map(|k| a[k].max(bi[k] * REACH_BLOCK));
                     let c1 = [0, 1, 2].map(|k| b[k].min(bi[k] * REACH_BLOCK + REACH_BLOCK - 1));
-                    self.frame.for_cells(c0, c1, |c| {
-                        for &v in &self.items[self.start[c] as usize..self.start[c + 1] as usize] {
-                            f(v);
-                        }
-                    });
+                    self.for_items(c0, c1, &mut f);
                 }
             }
         }
     }
 
     /// Calls `f` for every vertex in the cells overlapping the box [lo, hi].
-    pub fn query(&self, lo: DVec3, hi: DVec3, mut f: impl FnMut(u32)) {
-        self.frame.for_cells(self.frame.coords(lo), self.frame.coords(hi), |c| {
+    pub fn query(&self, lo: DVec3, hi: DVec3, f: impl FnMut(u32)) {
+        self.for_items(self.frame.coords(lo), self.frame.coords(hi), f);
+    }
+
+    /// Calls `f` for every vertex in the cells from `a` to `b` (corners included).
+    fn for_items(&self, a: [usize; 3], b: [usize; 3], mut f: impl FnMut(u32)) {
+        self.frame.for_cells(a, b, |c| {
             for &v in &self.items[self.start[c] as usize..self.start[c + 1] as usize] {
                 f(v);
             }
@@ -209,9 +214,8 @@ mod tests {
         // large |d| of a thin part): every query finds the same vertices within reach as the
         // full query of the same box, and passes over most of the others.
         let mut rng = crate::geometry::testing::Rng(12345);
-        let mut rnd = move || rng.next();
-        let pos: Vec<DVec3> = (0..4000).map(|_| DVec3::new(rnd(), rnd(), rnd())).collect();
-        let reach: Vec<f64> = (0..4000).map(|v| if v % 500 == 0 { 0.3 } else { 0.01 + 0.04 * rnd() }).collect();
+        let pos: Vec<DVec3> = (0..4000).map(|_| DVec3::new(rng.next(), rng.next(), rng.next())).collect();
+        let reach: Vec<f64> = (0..4000).map(|v| if v % 500 == 0 { 0.3 } else { 0.01 + 0.04 * rng.next() }).collect();
         let mut g = DenseGrid::new(&pos);
         for (p, &r) in pos.iter().zip(&reach) {
             g.raise_reach(*p, r);
@@ -219,7 +223,7 @@ mod tests {
         let within = |lo: DVec3, hi: DVec3, v: u32| pos[v as usize].clamp(lo, hi).distance(pos[v as usize]) < reach[v as usize];
         let (mut seen_all, mut seen_near) = (0, 0);
         for q in 0..50 {
-            let c = DVec3::new(rnd(), rnd(), rnd());
+            let c = DVec3::new(rng.next(), rng.next(), rng.next());
             let h = DVec3::splat(0.02 + 0.1 * (q % 5) as f64);
             let (lo, hi) = (c - h, c + h);
             let (mut all, mut near) = (Vec::new(), Vec::new());

@@ -162,6 +162,9 @@ pub fn cubic_roots_in_unit(c: &[f64; 4], out: &mut [f64; 3]) -> usize {
     cubic_roots_in_unit_within(c, f64::INFINITY, out)
 }
 
+/// A monotone piece of a cubic holding a root: (lo, hi, f(lo), f(hi)).
+type Bracket = (f64, f64, f64, f64);
+
 /// [`cubic_roots_in_unit`], where a monotone piece that lies wholly outside [-within, within]
 /// gets NaN in its root's place instead of a polished root: the same number of roots, in the
 /// same places, and each root inside that range exactly as [`cubic_roots_in_unit`] finds it.
@@ -191,14 +194,14 @@ pub fn cubic_roots_in_unit_within(c: &[f64; 4], within: f64, out: &mut [f64; 3])
     // predecessor might be that near, it is polished after all, so that exactly the roots of
     // the full search are kept.
     let mut n = 0usize;
-    let mut skipped: [Option<(f64, f64, f64, f64)>; 3] = [None; 3];
-    let resolve = |i: usize, out: &mut [f64; 3], skipped: &mut [Option<(f64, f64, f64, f64)>; 3]| {
+    let mut skipped: [Option<Bracket>; 3] = [None; 3];
+    let resolve = |i: usize, out: &mut [f64; 3], skipped: &mut [Option<Bracket>; 3]| {
         if let Some((lo, hi, flo, fhi)) = skipped[i].take() {
             out[i] = polish_root(&c, lo, hi, flo, fhi);
         }
     };
     // Pushes root r (ascending: r ≥ every root before it).
-    let push = |r: f64, n: &mut usize, out: &mut [f64; 3], skipped: &mut [Option<(f64, f64, f64, f64)>; 3]| {
+    let push = |r: f64, n: &mut usize, out: &mut [f64; 3], skipped: &mut [Option<Bracket>; 3]| {
         if *n > 0 {
             if skipped[*n - 1].is_some_and(|p| r - p.1 <= 1e-9) {
                 resolve(*n - 1, out, skipped);
@@ -578,18 +581,17 @@ mod tests {
         // the ends of the range; every range. Each root inside the range is the full search's
         // to the bit, in the same place; a root left out lies outside the range.
         let mut rng = Rng(99);
-        let mut rnd = move || rng.next();
         let (mut left_out, mut kept) = (0, 0);
         for case in 0..20_000 {
-            let r1 = 2.0 * rnd() - 1.0;
+            let r1 = rng.sym();
             let r2 = match case % 4 {
-                0 => 2.0 * rnd() - 1.0,
-                1 => r1 + 1e-9 * (2.0 * rnd() - 1.0),
+                0 => rng.sym(),
+                1 => r1 + 1e-9 * (rng.sym()),
                 2 => r1,
-                _ => r1 + 1e-3 * rnd(),
+                _ => r1 + 1e-3 * rng.next(),
             };
-            let r3 = if case % 3 == 0 { r2 + 2e-9 * rnd() } else { 3.0 * rnd() - 1.5 };
-            let a = 0.5 + rnd();
+            let r3 = if case % 3 == 0 { r2 + 2e-9 * rng.next() } else { 3.0 * rng.next() - 1.5 };
+            let a = 0.5 + rng.next();
             // a(t − r1)(t − r2)(t − r3)
             let (s1, s2, s3) = (r1 + r2 + r3, r1 * r2 + r1 * r3 + r2 * r3, r1 * r2 * r3);
             let c = [-a * s3, a * s2, -a * s1, a];
@@ -598,7 +600,7 @@ mod tests {
             let within = match case % 5 {
                 0 => r1.abs(),
                 1 => r2.abs() + 5e-10,
-                2 => 1.5 * rnd(),
+                2 => 1.5 * rng.next(),
                 3 => 0.0,
                 _ => r3.abs() - 1e-10,
             };

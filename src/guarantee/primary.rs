@@ -574,25 +574,18 @@ mod tests {
         // lean below the plane, so d's sign is not known), points on the shell (some exactly
         // on an edge or a corner) and points anywhere near it. Every solution of the cubic must
         // have |d| ≥ the bound; a point with no solution should mostly be culled.
-        let mut seed = 0x2545F4914F6CDD1Du64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let vec = |next: &mut dyn FnMut() -> f64| DVec3::new(2.0 * next() - 1.0, 2.0 * next() - 1.0, 2.0 * next() - 1.0);
+        let mut rng = crate::geometry::testing::Rng(0x2545F4914F6CDD1D);
         let (mut solutions, mut misses, mut culled) = (0, 0, 0);
         for i in 0..20000 {
-            let p = [vec(&mut next), vec(&mut next), vec(&mut next)];
+            let p = [rng.vec(), rng.vec(), rng.vec()];
             let nf = crate::geometry::face_normal(p[0], p[1], p[2]);
             if nf == DVec3::ZERO {
                 continue;
             }
             let spread = if i % 4 == 0 { 2.0 } else { 0.5 };
-            let n = [0, 1, 2].map(|_| (nf + spread * vec(&mut next)).normalize_or(nf));
+            let n = [0, 1, 2].map(|_| (nf + spread * rng.vec()).normalize_or(nf));
             let x = if i % 2 == 0 {
-                let mut b = [next(), next(), next()];
+                let mut b = [rng.next(), rng.next(), rng.next()];
                 if i % 6 == 0 {
                     b[(i / 6) % 3] = 0.0;
                 }
@@ -601,10 +594,10 @@ mod tests {
                 }
                 let sum = b[0] + b[1] + b[2];
                 let b = b.map(|v| v / sum);
-                let d = 0.9 * (2.0 * next() - 1.0);
+                let d = 0.9 * rng.sym();
                 crate::geometry::interpolate_direction(&p, &b) + d * crate::geometry::interpolate_direction(&n, &b)
             } else {
-                (p[0] + p[1] + p[2]) / 3.0 + 1.5 * vec(&mut next)
+                (p[0] + p[1] + p[2]) / 3.0 + 1.5 * rng.vec()
             };
             let mut tris = Tris::default();
             tris.push(0, [0, 1, 2], p, n);
