@@ -12,7 +12,7 @@ use crate::decimate::{Candidate, State};
 use crate::guarantee::chunks::{chunk_count, run_to_first_failure};
 use crate::guarantee::ids::IdIndex;
 use super::outcome::{Accepted, Outcome, Rejected};
-use crate::guarantee::{check_faces, find_primary, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
+use crate::guarantee::{check_faces, find_primary, find_primary_recording, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
 use crate::geometry::{face_cross, vertex_direction};
 use crate::decimate::stages::Stage;
 use std::time::Instant;
@@ -641,12 +641,9 @@ impl MapContext for CandidateContext<'_> {
         // reach leaves their box, a grid query of this point's own.
         let outer = self.outer.get_or_init(|| st.outer_faces(self.c, self.tris, self.faces, self.maps, self.extras));
         let search = |best: Option<Map>, far: &Tris, scratch: &mut Scratch| -> Option<Map> {
+            // Every face within that reach is recorded as read (the search's own pass).
             let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
-            if scratch.record_within(x, far, reach) == 0 {
-                // No face there is within reach: the search would find nothing.
-                return best;
-            }
-            pick(best, far, find_primary_hinted(x, normals, far, st.mode, reach.min(st.dmax), true, false, &hint(far), scratch))
+            pick(best, far, find_primary_recording(x, normals, far, st.mode, reach.min(st.dmax), reach, &hint(far), scratch))
         };
         best = search(best, &outer.tris, scratch);
         let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);

@@ -190,20 +190,42 @@ fn solution_unclipped(x: DVec3, info: &FaceInfo, mode: NormalMode, dmax: f64, d_
             let s = 2.0 * dmax;
             let ct = [c[0], c[1] * s, c[2] * s * s, c[3] * s * s * s];
             let mut roots = [0.0f64; 3];
-            let nr = geometry::cubic_roots_in_unit(&ct, &mut roots);
-            let mut best: Option<Map> = None;
-            for &t in &roots[..nr] {
-                let d = t * s;
-                let q = [p[0] + d * n[0], p[1] + d * n[1], p[2] + d * n[2]];
-                if let Some(bary) = geometry::barycentric(x, q[0], q[1], q[2]) {
-                    if best.is_none_or(|b| (d - d_near).abs() < (b.d - d_near).abs()) {
-                        best = Some(Map { face: 0, bary, d });
-                    }
-                }
+            // Only the roots near d_near first: every root beyond the window is farther from
+            // d_near than one found well inside it, so that one is the full search's answer.
+            let t_near = d_near / s;
+            let nr = geometry::cubic_roots_in_unit_between(&ct, t_near - NEAR_WINDOW, t_near + NEAR_WINDOW, &mut roots);
+            let best = nearest_solution(x, p, n, s, d_near, &roots[..nr]);
+            if best.is_some_and(|b| (b.d - d_near).abs() <= 0.5 * NEAR_WINDOW * s) {
+                return best;
             }
-            best
+            let nr = geometry::cubic_roots_in_unit(&ct, &mut roots);
+            nearest_solution(x, p, n, s, d_near, &roots[..nr])
         }
     }
+}
+
+/// Half the range (in units of 2·dmax) around the wanted d in which [`solution_unclipped`]
+/// polishes roots first. Why: along a dense edge d moves far less than this (0.1·dmax), while
+/// the shell's other solutions mostly lie farther: they are left unpolished.
+const NEAR_WINDOW: f64 = 0.05;
+
+/// Of the roots `roots` (t = d / s; NaN: left out), the solution whose d is nearest `d_near`
+/// (the first of equal ones), barycentrics unclipped.
+fn nearest_solution(x: DVec3, p: &[DVec3; 3], n: &[DVec3; 3], s: f64, d_near: f64, roots: &[f64]) -> Option<Map> {
+    let mut best: Option<Map> = None;
+    for &t in roots {
+        if t.is_nan() {
+            continue;
+        }
+        let d = t * s;
+        let q = [p[0] + d * n[0], p[1] + d * n[1], p[2] + d * n[2]];
+        if let Some(bary) = geometry::barycentric(x, q[0], q[1], q[2]) {
+            if best.is_none_or(|b| (d - d_near).abs() < (b.d - d_near).abs()) {
+                best = Some(Map { face: 0, bary, d });
+            }
+        }
+    }
+    best
 }
 
 /// Where the dense segment x0 → x1 leaves triangle `t1` (on which `m0` is x0's solution) across
@@ -1401,6 +1423,52 @@ mod tests {
         let dense = DenseData::new(&p, &f);
         let v = validate(&dense, &roof(), &CheckOptions::new(NormalMode::Constant, 1.0));
         assert!(v.valid, "{v:?}");
+    }
+
+    #[test]
+    fn the_solution_nearest_a_depth_is_the_full_search_one_bit_for_bit() {
+        // Random triangles and directions, points on the shell (two sheets where the directions
+        // spread), the wanted d at the point's own d, near it or anywhere: the windowed search
+        // of `solution_unclipped` returns exactly what the nearest of all roots gives.
+        let mut rng = crate::geometry::testing::Rng(0x9E3779B97F4A7C15);
+        let (mut cases, mut by_window) = (0, 0);
+        for i in 0..20_000 {
+            let p = [rng.vec(), rng.vec(), rng.vec()];
+            let nf = geometry::face_normal(p[0], p[1], p[2]);
+            if nf == DVec3::ZERO {
+                continue;
+            }
+            let spread = [0.2, 0.8, 2.0][i % 3];
+            let n = [0, 1, 2].map(|_| (nf + spread * rng.vec()).normalize_or(nf));
+            let b = [rng.next(), rng.next(), rng.next()];
+            let sum = b[0] + b[1] + b[2];
+            let b = b.map(|v| 1.5 * v / sum - 0.15);
+            let d = 0.8 * rng.sym();
+            let x = interpolate_direction(&p, &b) + d * interpolate_direction(&n, &b);
+            let d_near = match i % 4 {
+                0 => d,
+                1 => d + 0.01 * rng.sym(),
+                2 => d + 0.2 * rng.sym(),
+                _ => 2.0 * rng.sym(),
+            };
+            let info = FaceInfo { verts: [0, 1, 2], pos: p, dir: n };
+            let dmax = 1.0;
+            let got = solution_unclipped(x, &info, NormalMode::Interpolated, dmax, d_near);
+            let (s, c) = (2.0 * dmax, geometry::cubic_coeffs(x, &p, &n));
+            let ct = [c[0], c[1] * s, c[2] * s * s, c[3] * s * s * s];
+            let mut roots = [0.0; 3];
+            let nr = geometry::cubic_roots_in_unit(&ct, &mut roots);
+            let want = nearest_solution(x, &p, &n, s, d_near, &roots[..nr]);
+            let bits = |m: Option<Map>| m.map(|m| (m.d.to_bits(), m.bary.map(f64::to_bits)));
+            assert_eq!(bits(got), bits(want), "case {i}");
+            cases += 1;
+            if want.is_some_and(|w| (w.d - d_near).abs() <= 0.5 * NEAR_WINDOW * s) {
+                by_window += 1;
+            }
+        }
+        // Measured: 20,000 cases, 9,216 answered within the window (bounds 10 % below); with
+        // the window's answer taken wherever it has one, case 899 differs.
+        assert!(cases > 18_000 && by_window > 8_300, "{cases} cases, {by_window} answered by the window");
     }
 
     #[test]
