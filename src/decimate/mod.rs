@@ -242,7 +242,7 @@ impl State {
             bary[k] = 1.0;
             st.assoc.push(Map { face: f, bary, d: 0.0 });
             st.face_dense.push(f, v);
-            st.grid.raise_reach(st.dense.pos[v as usize], 0.0 + st.edge_reach[v as usize]);
+            st.grid.raise_reach(st.dense.pos[v as usize], st.edge_reach[v as usize]);
         }
         for h in 0..st.topo.corner.len() as u32 {
             let (a, b) = (st.topo.from(h), st.topo.to(h));

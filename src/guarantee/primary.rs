@@ -317,11 +317,11 @@ const SELECT_MAX: usize = 24;
 /// Reusable per-thread scratch space.
 #[derive(Default)]
 pub struct Scratch {
-    /// Triangles within reach by (bound, index), smallest first.
-    order: BinaryHeap<Reverse<(i64, u32)>>,
+    /// The buffer of a search's triangles within reach, by (bound, index).
+    order: Vec<Reverse<(i64, u32)>>,
     found: Vec<DVec3>,
     /// Faces a caller's searches read beyond its own set (the decimator's footprint of a
-    /// candidate, [`Scratch::record_within`]), each once; the caller takes them with
+    /// candidate, [`find_primary_recording`]), each once; the caller takes them with
     /// [`Scratch::take_reads`].
     reads: Vec<u32>,
     /// Bit f: face f is in `reads` (a bisection's midpoints read the same faces millions of
@@ -342,7 +342,8 @@ impl Scratch {
     /// Records in the read record ([`Scratch::take_reads`]) the faces of `tris` whose sphere
     /// bound from `x` is within `reach`, and returns how many there were (0: a search of `tris`
     /// within that reach finds nothing). [`find_primary_recording`] records the same faces in
-    /// its own pass; this separate pass is the form its test compares it with.
+    /// its own pass; this separate pass is the form the tests compare it with.
+    #[cfg(test)]
     pub fn record_within(&mut self, x: DVec3, tris: &Tris, reach: f64) -> usize {
         let mut within = 0;
         for (&sphere, &f) in tris.sphere.iter().zip(&tris.ids) {
@@ -368,7 +369,7 @@ impl Scratch {
         }
     }
 
-    /// The faces recorded by [`Scratch::record_within`] since the last take, each once, in the
+    /// The faces recorded by [`find_primary_recording`] since the last take, each once, in the
     /// order first read; the record starts empty again.
     pub fn take_reads(&mut self) -> Vec<u32> {
         for &f in &self.reads {
@@ -416,8 +417,8 @@ pub fn find_primary_hinted(
     search_primary(x, normals, tris, mode, dmax, check4, strict, hint, None, scratch)
 }
 
-/// [`find_primary_hinted`] (condition (4) applied, not strict) that also records, as
-/// [`Scratch::record_within`] does, the faces whose sphere bound is within `record` (≥ `dmax`,
+/// [`find_primary_hinted`] (condition (4) applied, not strict) that also records in the read
+/// record ([`Scratch::take_reads`]) the faces whose sphere bound is within `record` (≥ `dmax`,
 /// the search's reach): one pass over the triangles instead of two, the same search and the same
 /// record.
 #[allow(clippy::too_many_arguments)]
@@ -508,7 +509,7 @@ fn search_primary(
         _ => dmax,
     };
     // A scan or a heap, not a sort: the search mostly stops after a few triangles.
-    let mut order = std::mem::take(&mut scratch.order).into_vec();
+    let mut order = std::mem::take(&mut scratch.order);
     order.clear();
     // A recording search passes over the faces beyond the larger of the two reaches.
     let lim = record.map_or(reach, |r| r.max(reach));
@@ -524,28 +525,32 @@ fn search_primary(
             order.push(Reverse((total_order_key(b), t as u32)));
         }
     }
-    if order.len() <= SELECT_MAX {
-        // Few: the smallest picked by a scan each time (no heap to build).
-        while let Some((i, &Reverse((key, ti)))) = order.iter().enumerate().max_by_key(|e| e.1) {
-            let tb = from_order_key(key);
-            if !strict && best.is_some_and(|(_, h)| tb > h.d.abs() + tie) {
-                break;
-            }
-            order.swap_remove(i);
-            visit(ti as usize, &mut best, &mut scratch.found);
-        }
-        order.clear();
-        scratch.order = BinaryHeap::from(order);
-    } else {
-        scratch.order = BinaryHeap::from(order);
-        while let Some(Reverse((key, ti))) = scratch.order.pop() {
-            let tb = from_order_key(key);
-            if !strict && best.is_some_and(|(_, h)| tb > h.d.abs() + tie) {
-                break;
-            }
-            visit(ti as usize, &mut best, &mut scratch.found);
-        }
+    // Few: the smallest taken by a scan each time; many: off a heap. The same order.
+    let mut heap = BinaryHeap::new();
+    if order.len() > SELECT_MAX {
+        heap = BinaryHeap::from(std::mem::take(&mut order));
     }
+    let mut next = || {
+        if !heap.is_empty() {
+            return heap.pop().map(|e| e.0);
+        }
+        let i = order.iter().enumerate().max_by_key(|e| e.1)?.0;
+        Some(order.swap_remove(i).0)
+    };
+    while let Some((key, ti)) = next() {
+        let tb = from_order_key(key);
+        if !strict && best.is_some_and(|(_, h)| tb > h.d.abs() + tie) {
+            break;
+        }
+        visit(ti as usize, &mut best, &mut scratch.found);
+    }
+    // The larger buffer is kept for the next search.
+    let mut kept = heap.into_vec();
+    if kept.capacity() < order.capacity() {
+        kept = order;
+    }
+    kept.clear();
+    scratch.order = kept;
     if strict && scratch.found.len() > 1 {
         return Found::Ambiguous;
     }
