@@ -3,7 +3,7 @@
 
 use anyhow::Result;
 use clap::{Parser, Subcommand, ValueEnum};
-use dispdec::decimate::{Options, DEFAULT_MAX_VALENCE};
+use dispdec::decimate::{NearRule, Options, DEFAULT_MAX_VALENCE};
 use dispdec::eval::NormalMode;
 use dispdec::app::run::{decimate, DecimateJob};
 use std::io::IsTerminal;
@@ -76,6 +76,12 @@ enum MapKind {
     Normalized,
     /// The object-space vector d·N(X) in RGB (Blender's Displace, RGB to XYZ).
     Vector,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum NearRuleArg {
+    Box,
+    Triangles,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -179,6 +185,11 @@ enum Cmd {
         /// Candidates evaluated per round (1 = the paper's serial algorithm).
         #[arg(long, default_value_t = 16)]
         batch: usize,
+        /// Which dense vertices' edges a candidate walks again besides its own: those within
+        /// |d| + half their longest edge of the collapsed region's triangles (triangles), or of
+        /// the box around them (box: the earlier rule, same verdicts, more edges walked).
+        #[arg(long, value_enum, default_value = "triangles")]
+        near_rule: NearRuleArg,
         #[command(flatten)]
         prep: PrepArgs,
         /// Write the scan as decimated (welded, repaired) to this OBJ (.obj or .obj.gz), so that
@@ -379,6 +390,7 @@ fn run(cli: Cli) -> Result<i32> {
             backend,
             threads,
             batch,
+            near_rule,
             prep,
             repaired,
         } => {
@@ -395,6 +407,10 @@ fn run(cli: Cli) -> Result<i32> {
                     dmax,
                     strict,
                     batch,
+                    near: match near_rule {
+                        NearRuleArg::Box => NearRule::Box,
+                        NearRuleArg::Triangles => NearRule::Triangles,
+                    },
                 },
                 threads,
                 progress: !say.quiet && std::io::stderr().is_terminal(),

@@ -90,11 +90,12 @@ fn horse_rebuilt_at_level_five_matches_the_scan() {
         .and_then(|t| t.split(',').next())
         .and_then(|t| t.trim().parse().ok())
         .unwrap_or_else(|| panic!("no agreement line: {said}"));
-    // Measured: RMS 2.1e-5, max 1.6e-3 (where the image folds and two sheets cover a point);
-    // bounds 2.5x and 2x that.
-    assert!(rms < 5e-5, "{said}");
+    // Measured on the 336-face base: RMS 3.53e-5, max 3.33e-3 (where the image folds and two
+    // sheets cover a point; on the 338-face base before the fold rule 2.1e-5 and 1.6e-3);
+    // bounds 1.5x that.
+    assert!(rms < 5.3e-5, "{said}");
     let max: f64 = said.split(", max ").nth(1).and_then(|t| t.split(';').next()).and_then(|t| t.trim().parse().ok()).unwrap();
-    assert!(max < 3.2e-3, "{said}");
+    assert!(max < 5.0e-3, "{said}");
     assert!(said.contains(" 0 where the map has no d"), "{said}");
     let b = dispdec::app::run::load_base_with_directions(&base).unwrap().base;
     let map = DispMap::read(&disp, b.faces.len()).unwrap();

@@ -110,7 +110,7 @@ fn seam_split_mesh_gives_the_welded_base() {
 
     // Split in face order (as exporters write it): a welded mesh again, numbered otherwise; the
     // base is valid, and on the 6,000-face sample it has the face count of the welded file's
-    // base within 5 % (measured: 338 both).
+    // base within 5 %.
     let (sv, sf) = split_per_face(&v, &f, false);
     let soup = d.join("soup.obj");
     write_obj(&soup, &sv, &sf);

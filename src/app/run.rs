@@ -116,6 +116,8 @@ pub struct Report {
     pub strict: bool,
     pub max_valence: u32,
     pub batch: usize,
+    /// `--near-rule` (triangles unless asked).
+    pub near_rule: crate::decimate::NearRule,
     pub threads: usize,
     pub dmax: f64,
     pub max_abs_d: f64,
@@ -292,6 +294,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         strict: job.options.strict,
         max_valence: job.options.max_valence,
         batch: job.options.batch,
+        near_rule: job.options.near,
         threads: rayon::current_num_threads(),
         dmax: state.dmax,
         max_abs_d: recheck.max_abs_d,

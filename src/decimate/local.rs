@@ -8,7 +8,7 @@
 //! - any other vertex whose distance to a changed triangle is below its |d|: only those can
 //!   gain a solution there ([`State::moved_primaries`]).
 
-use crate::decimate::{Candidate, State};
+use crate::decimate::{Candidate, NearRule, State};
 use crate::guarantee::chunks::{chunk_count, run_to_first_failure};
 use crate::guarantee::ids::IdIndex;
 use super::outcome::{Accepted, Outcome, Rejected};
@@ -434,6 +434,7 @@ impl State {
         }
         let mut cand = Vec::new();
         let mut near = Vec::new();
+        let spheres = (self.near == NearRule::Triangles).then(|| RegionSpheres::new(&tris.pos[..n_region]));
         // Blocks of the grid whose every vertex lies beyond |d| + edge reach are passed over.
         self.grid.query_near(lo, hi, reach, |v| {
             let dv = self.assoc[v as usize].d.abs();
@@ -441,10 +442,14 @@ impl State {
                 return;
             }
             let x = self.dense.pos[v as usize];
-            let dist = x.clamp(lo, hi).distance(x);
+            let mut dist = x.clamp(lo, hi).distance(x);
+            let limit = dv + self.edge_reach[v as usize];
+            if let (Some(s), true) = (&spheres, dist < limit) {
+                dist = s.distance_below(x, &tris.pos[..n_region], dv, limit);
+            }
             if dist < dv {
                 cand.push(v);
-            } else if dist < dv + self.edge_reach[v as usize] {
+            } else if dist < limit {
                 near.push(v);
             }
         });
@@ -672,4 +677,127 @@ impl MapContext for CandidateContext<'_> {
     }
 }
 
+/// Slack on a distance to a region triangle, relative to the triangle's size and the distance:
+/// a solution's barycentrics may be BARY_EPS below 0 (X just outside T, |N(X)| just above 1)
+/// and the distance itself is rounded; a millionth covers both a thousand times over.
+const NEAR_SLACK_REL: f64 = 1e-6;
 
+/// Bounding spheres of a candidate's region triangles, for `NearRule::Triangles`: a vertex's
+/// distance to a triangle is at least its distance to the triangle's sphere, so most
+/// triangles are passed over without the exact point–triangle distance.
+struct RegionSpheres {
+    centre: Vec<DVec3>,
+    radius: Vec<f64>,
+    size: Vec<f64>,
+}
+
+impl RegionSpheres {
+    fn new(tris: &[[DVec3; 3]]) -> Self {
+        let mut s = RegionSpheres { centre: Vec::new(), radius: Vec::new(), size: Vec::new() };
+        for p in tris {
+            let c = (p[0] + p[1] + p[2]) / 3.0;
+            s.centre.push(c);
+            s.radius.push(p.iter().map(|q| q.distance(c)).fold(0.0, f64::max));
+            s.size.push(p[0].distance(p[1]).max(p[1].distance(p[2])).max(p[2].distance(p[0])));
+        }
+        s
+    }
+
+    /// A lower bound on the distance from x to the region, less the slack: exact (the slackened
+    /// distance to the nearest triangle) when that is below `limit`, and some value at least
+    /// `limit` otherwise; it stops at the first triangle nearer than `stop` (≤ `limit`), as
+    /// nothing below `stop` is told apart.
+    fn distance_below(&self, x: DVec3, tris: &[[DVec3; 3]], stop: f64, limit: f64) -> f64 {
+        let slack = |m: f64, t: usize| m - NEAR_SLACK_REL * (self.size[t] + m);
+        let mut best = f64::INFINITY;
+        for (t, p) in tris.iter().enumerate() {
+            let lower = slack((x.distance(self.centre[t]) - self.radius[t]).max(0.0), t);
+            if lower >= best.min(limit) {
+                continue;
+            }
+            best = best.min(slack(crate::geometry::triangle_distance(x, p), t));
+            if best < stop {
+                break;
+            }
+        }
+        best
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::testing::Rng;
+    use crate::geometry::triangle_distance;
+
+    fn slackened_min(x: DVec3, tris: &[[DVec3; 3]]) -> f64 {
+        let s = RegionSpheres::new(tris);
+        tris.iter()
+            .enumerate()
+            .map(|(t, p)| {
+                let m = triangle_distance(x, p);
+                m - NEAR_SLACK_REL * (s.size[t] + m)
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    #[test]
+    fn a_box_around_a_bent_region_holds_what_its_triangles_do_not() {
+        // A bent region of two triangles in z = 0, and a point x inside its box:
+        //
+        //    y = 2  +                 T1 = (0,0) (1,0) (0,2), T2 = (0,0) (2,-2) (2,0);
+        //           |\      x         the box is [0,2] × [-2,2] and holds x = (1.5, 1.5)
+        //           |T1\               (box distance 0), but x is 2.5/√5 ≈ 1.12 from T1's
+        //    y = 0  +---+----+         long edge and 1.5 from T2.
+        //            \   T2  |
+        //              \     |
+        //    y = -2      \   +
+        //           0   1    2
+        let tris = [
+            [DVec3::new(0.0, 0.0, 0.0), DVec3::new(1.0, 0.0, 0.0), DVec3::new(0.0, 2.0, 0.0)],
+            [DVec3::new(0.0, 0.0, 0.0), DVec3::new(2.0, -2.0, 0.0), DVec3::new(2.0, 0.0, 0.0)],
+        ];
+        let x = DVec3::new(1.5, 1.5, 0.0);
+        let s = RegionSpheres::new(&tris);
+        // The line 2x + y = 2 through (1,0) and (0,2): |2·1.5 + 1.5 − 2| / √5.
+        let exact = (2.0 * 1.5 + 1.5 - 2.0) / 5f64.sqrt();
+        let d = s.distance_below(x, &tris, 0.0, 10.0);
+        assert!((d - exact).abs() < 1e-5, "{d} against {exact}");
+        assert!(d < exact, "the slack only lowers it");
+        // Beyond the limit it says so without the exact value; below `stop` it stops early.
+        assert!(s.distance_below(x, &tris, 0.0, 0.5) >= 0.5);
+        assert!(s.distance_below(x, &tris, 1.2, 10.0) < 1.2);
+    }
+
+    #[test]
+    fn the_distance_to_a_region_classifies_as_the_brute_force_minimum_does() {
+        // Random regions of 1–30 triangles and points around them: below `stop`, between
+        // `stop` and `limit` (then exactly the minimum), or at least `limit` — as the plain
+        // minimum over every triangle says.
+        let mut rng = Rng(0x9e3779b97f4a7c15);
+        let (mut below, mut between, mut beyond) = (0, 0, 0);
+        for _ in 0..20_000 {
+            let n = 1 + (rng.next() * 30.0) as usize;
+            let centre = rng.vec();
+            let tris: Vec<[DVec3; 3]> = (0..n).map(|_| [0; 3].map(|_| centre + 0.4 * rng.vec())).collect();
+            let x = centre + 0.7 * rng.vec();
+            let stop = 0.3 * rng.next();
+            let limit = stop + 0.3 * rng.next();
+            let got = RegionSpheres::new(&tris).distance_below(x, &tris, stop, limit);
+            let want = slackened_min(x, &tris);
+            if want < stop {
+                below += 1;
+                assert!(got < stop, "{got} {want} {stop}");
+            } else if want < limit {
+                between += 1;
+                assert_eq!(got.to_bits(), want.to_bits(), "{got} {want}");
+            } else {
+                beyond += 1;
+                assert!(got >= limit, "{got} {want} {limit}");
+            }
+        }
+        // Measured: 4,242 below, 5,524 between, 10,234 beyond; each well represented (−10 %).
+        println!("below {below}, between {between}, beyond {beyond}");
+        assert!(below > 3800 && between > 4900 && beyond > 9200, "{below} {between} {beyond}");
+    }
+}

@@ -54,8 +54,8 @@ pub const MAX_DEPTH: u32 = 32;
 
 /// A piece is continuous when its images are no farther apart than this many times the local
 /// stretch of the projection (|dX/dx| along the edge, exact from the shell's Jacobian at both
-/// ends) times the piece's length.
-/// Why: over a short piece a continuous image moves by at most the larger end stretch times the
+/// ends; the *smaller* of the two, see `refine`) times the piece's length.
+/// Why: over a short piece a continuous image moves by about the ends' stretch times the
 /// length, up to second-order terms; 2× leaves room for those and for curved image paths.
 pub const STRETCH_RATIO: f64 = 2.0;
 
@@ -373,7 +373,12 @@ fn refine<C: MapContext>(
         return;
     }
     let len = x0.distance(x1);
-    let sigma = s0.sigma.max(s1.sigma);
+    // The smaller end stretch: where the primary's solution path folds (two roots of the cubic
+    // meet and vanish, and the primary moves to another sheet), the stretch at the fold side
+    // grows without bound, and the larger one would pass any gap — the jump at a fold. Taking
+    // the smaller bisects such a piece to MAX_DEPTH, where a continuous image has converged
+    // and a fold's jump stays open (test `a_jump_at_a_fold_of_the_solution_path_is_a_tear`).
+    let sigma = s0.sigma.min(s1.sigma);
     let consistent = sigma.is_finite() && gap <= STRETCH_RATIO * sigma * len;
     // Pieces between faces that share only a vertex, or none, are bisected until their ends
     // share an edge (so that the way round a vertex is known) or MAX_DEPTH says the gap is
