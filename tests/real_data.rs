@@ -56,8 +56,8 @@ fn assert_near(name: &str, faces: u64, readme: u64) {
 }
 
 /// README's results table (`bash scripts/results.sh`).
-const BUNNY_FACES: u64 = 141;
-const HORSE_FACES: u64 = 336;
+const BUNNY_FACES: u64 = 139;
+const HORSE_FACES: u64 = 326;
 
 /// The base OBJ: `v`, one `vn` per `v`, `f v//vn`; a manifold with the given genus and loops.
 fn assert_base_obj(bytes: &[u8], faces: u64, genus: i64, loops: u64) {
@@ -126,7 +126,7 @@ fn strict_and_constant_modes_on_the_sample() {
     assert_eq!(r["global"]["strict"], true);
     assert_eq!(r["global"]["ambiguous"], 0, "{}", r["global"]);
     let fs = r["faces_out"].as_u64().unwrap();
-    assert_near("sample --strict", fs, 484);
+    assert_near("sample --strict", fs, 486);
     assert_base_obj(&obj, fs, 0, 1);
     let (r, _, _) = decimate(&scan, &dir, "c", &["--normals", "constant"]);
     assert_eq!(r["normals"], "constant");
@@ -138,13 +138,13 @@ fn strict_and_constant_modes_on_the_sample() {
     // 3,598 (3,590 before jumps at folds counted); 2,224 when a walk leaving one face's prism
     // was taken to enter the next at the same point (crossings count only where the two prisms
     // meet, at d = 0).
-    assert_near("sample --normals constant", r["faces_out"].as_u64().unwrap(), 3598);
+    assert_near("sample --normals constant", r["faces_out"].as_u64().unwrap(), 3594);
 }
 
 /// The same modes on the bunny (opt-in: ~25 min here): strict verified globally (README,
-/// Modes: 408 faces); constant mode valid (exit 0) with only what the scan itself cannot map
-/// exempt — its 13 vertices and 20 edges — at README's 38,664 faces (it exits 1 now: README,
-/// Modes, the re-check's near-tie).
+/// Modes: 439 faces); constant mode valid (exit 0: the re-check agrees with the global check
+/// since near-ties of |d| go by the exact value) with only what the scan itself cannot map
+/// exempt — its 13 vertices and 20 edges — at README's 38,659 faces.
 #[test]
 #[ignore = "slow (~25 min on 2 cores): cargo test --release --test real_data -- --ignored"]
 fn bunny_strict_and_constant_modes() {
@@ -155,14 +155,14 @@ fn bunny_strict_and_constant_modes() {
     assert_eq!(r["global"]["strict"], true);
     assert_eq!(r["global"]["ambiguous"], 0, "{}", r["global"]);
     let fs = r["faces_out"].as_u64().unwrap();
-    assert_near("bunny --strict", fs, 408);
+    assert_near("bunny --strict", fs, 439);
     assert_base_obj(&obj, fs, 0, 5);
     let (r, _, _) = decimate(&bunny, &dir, "c", &["--normals", "constant"]);
     assert_carries(&r);
     assert_eq!(r["unmapped_at_start"], 13);
     assert_eq!(r["global"]["pinched"], 13);
     assert_eq!(r["global"]["exempt_edges"], 20);
-    assert_near("bunny --normals constant", r["faces_out"].as_u64().unwrap(), 38664);
+    assert_near("bunny --normals constant", r["faces_out"].as_u64().unwrap(), 38659);
 }
 
 #[test]

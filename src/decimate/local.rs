@@ -405,8 +405,7 @@ impl State {
             let x = self.dense.pos[v as usize];
             dense.vertex_normals(v, &mut normals);
             if let Found::Hit(t, h) = find_primary(x, &normals, &far, self.mode, cur.d.abs() + tie, true, false, scratch) {
-                let (da, db) = (h.d.abs(), cur.d.abs());
-                if da < db - tie || (da <= db + tie && far.ids[t] < cur.face) {
+                if crate::guarantee::preferred(h.d.abs(), far.ids[t], cur.d.abs(), cur.face) {
                     maps[i] = Map { face: far.ids[t], bary: h.bary, d: h.d };
                 }
             }
@@ -434,7 +433,7 @@ impl State {
         }
         let mut cand = Vec::new();
         let mut near = Vec::new();
-        let spheres = (self.near == NearRule::Triangles).then(|| RegionSpheres::new(&tris.pos[..n_region]));
+        let spheres = (self.near == NearRule::Triangles).then(|| RegionSpheres::new(&tris.pos[..n_region], &tris.sphere[..n_region]));
         // Blocks of the grid whose every vertex lies beyond |d| + edge reach are passed over.
         self.grid.query_near(lo, hi, reach, |v| {
             let dv = self.assoc[v as usize].d.abs();
@@ -445,7 +444,7 @@ impl State {
             let mut dist = x.clamp(lo, hi).distance(x);
             let limit = dv + self.edge_reach[v as usize];
             if let (Some(s), true) = (&spheres, dist < limit) {
-                dist = s.distance_below(x, &tris.pos[..n_region], dv, limit);
+                dist = s.distance_below(x, dv, limit);
             }
             if dist < dv {
                 cand.push(v);
@@ -471,7 +470,7 @@ impl State {
             let x = self.dense.pos[v as usize];
             dense.vertex_normals(v, &mut normals);
             match find_primary(x, &normals, &region, self.mode, cur.d.abs(), true, false, scratch) {
-                Found::Hit(t, h) if h.d.abs() < cur.d.abs() => out.push((v, Map { face: region.ids[t], bary: h.bary, d: h.d })),
+                Found::Hit(t, h) if crate::guarantee::preferred(h.d.abs(), region.ids[t], cur.d.abs(), cur.face) => out.push((v, Map { face: region.ids[t], bary: h.bary, d: h.d })),
                 _ => near.push(v),
             }
         }
@@ -595,15 +594,12 @@ impl MapContext for CandidateContext<'_> {
     fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map> {
         let st = self.st;
         let tie = crate::guarantee::SAME_SOLUTION_REL * st.dmax;
-        // Smallest |d|, ties to the lowest face id: the rule of one search over the union.
+        // The rule of one search over the union ([`crate::guarantee::preferred`]).
         let pick = |best: Option<Map>, far: &Tris, found: Found| -> Option<Map> {
             let Found::Hit(t, h) = found else { return best };
             let better = match best {
                 None => true,
-                Some(cur) => {
-                    let (da, db) = (h.d.abs(), cur.d.abs());
-                    da < db - tie || (da <= db + tie && far.ids[t] < cur.face)
-                }
+                Some(cur) => crate::guarantee::preferred(h.d.abs(), far.ids[t], cur.d.abs(), cur.face),
             };
             if better {
                 Some(Map { face: far.ids[t], bary: h.bary, d: h.d })
@@ -682,36 +678,32 @@ impl MapContext for CandidateContext<'_> {
 /// and the distance itself is rounded; a millionth covers both a thousand times over.
 const NEAR_SLACK_REL: f64 = 1e-6;
 
-/// Bounding spheres of a candidate's region triangles, for `NearRule::Triangles`: a vertex's
-/// distance to a triangle is at least its distance to the triangle's sphere, so most
-/// triangles are passed over without the exact point–triangle distance.
-struct RegionSpheres {
-    centre: Vec<DVec3>,
-    radius: Vec<f64>,
+/// A candidate's region triangles as the near rule `NearRule::Triangles` measures them: their
+/// bounding spheres (the neighbourhood's own, [`Tris::sphere`]: a vertex's distance to a
+/// triangle is at least its distance to the triangle's sphere, so most triangles are passed
+/// over without the exact point–triangle distance) and their longest edges (for the slack).
+struct RegionSpheres<'a> {
+    pos: &'a [[DVec3; 3]],
+    sphere: &'a [(DVec3, f64)],
     size: Vec<f64>,
 }
 
-impl RegionSpheres {
-    fn new(tris: &[[DVec3; 3]]) -> Self {
-        let mut s = RegionSpheres { centre: Vec::new(), radius: Vec::new(), size: Vec::new() };
-        for p in tris {
-            let c = (p[0] + p[1] + p[2]) / 3.0;
-            s.centre.push(c);
-            s.radius.push(p.iter().map(|q| q.distance(c)).fold(0.0, f64::max));
-            s.size.push(p[0].distance(p[1]).max(p[1].distance(p[2])).max(p[2].distance(p[0])));
-        }
-        s
+impl<'a> RegionSpheres<'a> {
+    fn new(pos: &'a [[DVec3; 3]], sphere: &'a [(DVec3, f64)]) -> Self {
+        let size = pos.iter().map(|p| p[0].distance(p[1]).max(p[1].distance(p[2])).max(p[2].distance(p[0]))).collect();
+        RegionSpheres { pos, sphere, size }
     }
 
     /// A lower bound on the distance from x to the region, less the slack: exact (the slackened
     /// distance to the nearest triangle) when that is below `limit`, and some value at least
     /// `limit` otherwise; it stops at the first triangle nearer than `stop` (≤ `limit`), as
     /// nothing below `stop` is told apart.
-    fn distance_below(&self, x: DVec3, tris: &[[DVec3; 3]], stop: f64, limit: f64) -> f64 {
+    fn distance_below(&self, x: DVec3, stop: f64, limit: f64) -> f64 {
         let slack = |m: f64, t: usize| m - NEAR_SLACK_REL * (self.size[t] + m);
         let mut best = f64::INFINITY;
-        for (t, p) in tris.iter().enumerate() {
-            let lower = slack((x.distance(self.centre[t]) - self.radius[t]).max(0.0), t);
+        for (t, p) in self.pos.iter().enumerate() {
+            let (centre, radius) = self.sphere[t];
+            let lower = slack((x.distance(centre) - radius).max(0.0), t);
             if lower >= best.min(limit) {
                 continue;
             }
@@ -730,8 +722,13 @@ mod tests {
     use crate::geometry::testing::Rng;
     use crate::geometry::triangle_distance;
 
+    fn spheres(tris: &[[DVec3; 3]]) -> Vec<(DVec3, f64)> {
+        tris.iter().map(crate::geometry::triangle_sphere).collect()
+    }
+
     fn slackened_min(x: DVec3, tris: &[[DVec3; 3]]) -> f64 {
-        let s = RegionSpheres::new(tris);
+        let sp = spheres(tris);
+        let s = RegionSpheres::new(tris, &sp);
         tris.iter()
             .enumerate()
             .map(|(t, p)| {
@@ -758,15 +755,16 @@ mod tests {
             [DVec3::new(0.0, 0.0, 0.0), DVec3::new(2.0, -2.0, 0.0), DVec3::new(2.0, 0.0, 0.0)],
         ];
         let x = DVec3::new(1.5, 1.5, 0.0);
-        let s = RegionSpheres::new(&tris);
+        let sp = spheres(&tris);
+        let s = RegionSpheres::new(&tris, &sp);
         // The line 2x + y = 2 through (1,0) and (0,2): |2·1.5 + 1.5 − 2| / √5.
         let exact = (2.0 * 1.5 + 1.5 - 2.0) / 5f64.sqrt();
-        let d = s.distance_below(x, &tris, 0.0, 10.0);
+        let d = s.distance_below(x, 0.0, 10.0);
         assert!((d - exact).abs() < 1e-5, "{d} against {exact}");
         assert!(d < exact, "the slack only lowers it");
         // Beyond the limit it says so without the exact value; below `stop` it stops early.
-        assert!(s.distance_below(x, &tris, 0.0, 0.5) >= 0.5);
-        assert!(s.distance_below(x, &tris, 1.2, 10.0) < 1.2);
+        assert!(s.distance_below(x, 0.0, 0.5) >= 0.5);
+        assert!(s.distance_below(x, 1.2, 10.0) < 1.2);
     }
 
     #[test]
@@ -783,7 +781,8 @@ mod tests {
             let x = centre + 0.7 * rng.vec();
             let stop = 0.3 * rng.next();
             let limit = stop + 0.3 * rng.next();
-            let got = RegionSpheres::new(&tris).distance_below(x, &tris, stop, limit);
+            let sp = spheres(&tris);
+            let got = RegionSpheres::new(&tris, &sp).distance_below(x, stop, limit);
             let want = slackened_min(x, &tris);
             if want < stop {
                 below += 1;

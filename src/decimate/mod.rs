@@ -75,7 +75,7 @@ impl Default for Options {
             dmax: None,
             strict: false,
             batch: 16,
-            near: NearRule::Triangles,
+            near: NearRule::default(),
         }
     }
 }

@@ -13,9 +13,23 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
 /// Two solutions closer than this (relative to dmax) are the same point found by two
-/// triangles that share an edge or a vertex.
+/// triangles that share an edge or a vertex (strict mode's count of distinct solutions, the
+/// validator's second solutions). Searches also reach this much past the best |d| so far.
 /// Why: barycentric tolerance BARY_EPS puts shared-edge duplicates within ~1e-9 of each other.
 pub const SAME_SOLUTION_REL: f64 = 1e-7;
+
+/// Whether a solution with |d| = `da` on face `fa` is the primary rather than one with |d| =
+/// `db` on face `fb`: the smaller |d|, exactly; equal |d| to the lowest face id. Every search
+/// (local, re-check, validator, brute force, the GPU's f64 settling) decides by this one rule.
+/// No tolerance: two *distinct* points within a tolerance of each other's |d| (a dense point on
+/// the bisector of a crease, constant mode) would go to the lower face id, and the verdict on a
+/// base would change with the order of its `f` lines; exact |d| is the geometry's own answer,
+/// the same bits in every search, whatever the numbering. Equal |d| is the same point seen from
+/// two faces (d = 0 on a base vertex), where the face chosen does not move the image.
+#[inline]
+pub fn preferred(da: f64, fa: u32, db: f64, fb: u32) -> bool {
+    da < db || (da == db && fa < fb)
+}
 
 /// Slack added to every lean of [`Lean`] (a component of a unit direction).
 /// Why: a hit's barycentrics may be as low as −BARY_EPS, which moves N(X) off the convex hull
@@ -453,9 +467,7 @@ fn search_primary(
     scratch.found.clear();
     let mut best: Option<(usize, ShellHit)> = None;
     let tie = SAME_SOLUTION_REL * dmax;
-    // Solves triangle ti and keeps the better hit (smallest |d|; a tie — the same point seen
-    // from faces sharing an edge or a vertex — goes to the lowest face id, so that every search
-    // picks the same face).
+    // Solves triangle ti and keeps the better hit ([`preferred`]).
     let visit = |ti: usize, best: &mut Option<(usize, ShellHit)>, found: &mut Vec<DVec3>| {
         let reach = match *best {
             Some((_, h)) if !strict => h.d.abs() + tie,
@@ -477,10 +489,7 @@ fn search_primary(
             }
             let better = match *best {
                 None => true,
-                Some((bt, b)) => {
-                    let (da, db) = (h.d.abs(), b.d.abs());
-                    da < db - tie || (da <= db + tie && tris.ids[ti] < tris.ids[bt])
-                }
+                Some((bt, b)) => preferred(h.d.abs(), tris.ids[ti], b.d.abs(), tris.ids[bt]),
             };
             if better {
                 *best = Some((ti, h));
@@ -564,13 +573,12 @@ fn search_primary(
 /// when `check4`, smallest |d|, the first of equal ones): the f64 answer on the triangle the GPU
 /// chose.
 pub fn best_on_triangle(x: DVec3, normals: &[DVec3], tris: &Tris, t: usize, mode: NormalMode, dmax: f64, check4: bool) -> Option<ShellHit> {
-    let tie = SAME_SOLUTION_REL * dmax;
     let mut best: Option<ShellHit> = None;
     for h in solve_tri(x, tris, t, mode, dmax).iter() {
         if check4 && !condition4(direction_at(tris, t, &h, mode), normals.iter().copied()) {
             continue;
         }
-        if best.is_none_or(|b| h.d.abs() < b.d.abs() - tie) {
+        if best.is_none_or(|b| preferred(h.d.abs(), 0, b.d.abs(), 0)) {
             best = Some(h);
         }
     }
@@ -773,6 +781,46 @@ mod tests {
                 assert_eq!(total_order_key(a).cmp(&total_order_key(b)), a.total_cmp(&b), "{a:e} vs {b:e}");
             }
             assert_eq!(from_order_key(total_order_key(a)).to_bits(), a.to_bits(), "{a:e} back from its key");
+        }
+    }
+
+    #[test]
+    fn a_near_tie_between_two_distinct_points_goes_by_the_geometry_not_the_face_numbering() {
+        // A convex crease along the y axis, seen from y = 0 (constant normals: the projection is
+        // orthogonal). x* lies under the crease, on the bisector of the two faces but for 2e-9:
+        // 1.4e-9 closer to A than to B (the old rule called that a tie, under 1e-7·dmax, and
+        // gave it to the lower face id, whichever face that was). Its two solutions are
+        // 0.06 apart, so the choice moves the image.
+        //
+        //          z
+        //          |
+        //   A (z = 0, x ≤ 0)
+        //  ========+-------- x
+        //          \
+        //      x*   \  B (z = −x, x ≥ 0)
+        //            \
+        let a = [DVec3::new(-1.0, 0.0, 0.0), DVec3::new(0.0, -1.0, 0.0), DVec3::new(0.0, 1.0, 0.0)];
+        let b = [DVec3::new(0.0, -1.0, 0.0), DVec3::new(1.0, 0.0, -1.0), DVec3::new(0.0, 1.0, 0.0)];
+        let z = -0.1;
+        let x = DVec3::new(z * (2f64.sqrt() - 1.0) - 2e-9, 0.0, z);
+        let dir = [DVec3::Z; 3];
+        let mut answers = Vec::new();
+        for (ia, ib) in [(0u32, 1u32), (1, 0)] {
+            let mut tris = Tris::default();
+            let mut faces = [(ia, a), (ib, b)];
+            faces.sort_by_key(|f| f.0);
+            for (id, p) in faces {
+                tris.push(id, [3 * id, 3 * id + 1, 3 * id + 2], p, dir);
+            }
+            tris.finish();
+            let found = super::find_primary(x, &[], &tris, super::NormalMode::Constant, 1.0, false, false, &mut Scratch::default());
+            let super::Found::Hit(t, h) = found else { panic!("x* maps on both faces: {found:?}") };
+            answers.push((tris.ids[t] == ia, h.d));
+        }
+        // Face A, at d = z, in both numberings.
+        for (on_a, d) in answers {
+            assert!(on_a, "A is nearer, whatever the numbering");
+            assert!((d - z).abs() < 1e-12, "d = {d}");
         }
     }
 }

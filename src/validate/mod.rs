@@ -6,7 +6,7 @@
 //! BVH node's box, then to the triangle), so a vertex costs a handful of cubic solves.
 
 use crate::geometry::bvh::Bvh;
-use crate::guarantee::{check_face, find_primary, solve_tri, direction_at, CheckScratch, CheckStats, FaceCheck, FaceInfo, Found, Map, MapContext, NormalMode, Scratch, Tris, SAME_SOLUTION_REL};
+use crate::guarantee::{check_face, find_primary, solve_tri, direction_at, CheckScratch, CheckStats, FaceCheck, FaceInfo, Found, Map, MapContext, NormalMode, preferred, Scratch, Tris, SAME_SOLUTION_REL};
 use crate::mesh::{vertex_faces, DenseData};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -150,10 +150,9 @@ pub fn all_tris(base: &Base) -> Tris {
 }
 
 /// The primary solution of `x` by brute force (`validate --exhaustive`): every solution on every
-/// base triangle, no BVH, no bounds, no early exit; the smallest |d| satisfying (4), ties to the
-/// lowest face id — the rule of [`find_primary`], computed the slow way to cross-check it.
+/// base triangle, no BVH, no bounds, no early exit; the solution satisfying (4) that
+/// [`preferred`] ranks first — the rule of [`find_primary`], computed the slow way to cross-check it.
 pub fn primary_exhaustive(all: &Tris, x: DVec3, normals: &[DVec3], mode: NormalMode, dmax: f64, check4: bool) -> Option<Map> {
-    let tie = SAME_SOLUTION_REL * dmax;
     let mut best: Option<Map> = None;
     for t in 0..all.len() {
         for h in solve_tri(x, all, t, mode, dmax).iter() {
@@ -162,10 +161,7 @@ pub fn primary_exhaustive(all: &Tris, x: DVec3, normals: &[DVec3], mode: NormalM
             }
             let better = match best {
                 None => true,
-                Some(b) => {
-                    let (da, db) = (h.d.abs(), b.d.abs());
-                    da < db - tie || (da <= db + tie && all.ids[t] < b.face)
-                }
+                Some(b) => preferred(h.d.abs(), all.ids[t], b.d.abs(), b.face),
             };
             if better {
                 best = Some(Map { face: all.ids[t], bary: h.bary, d: h.d });
