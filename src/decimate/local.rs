@@ -597,11 +597,7 @@ impl MapContext for CandidateContext<'_> {
         // The rule of one search over the union ([`crate::guarantee::preferred`]).
         let pick = |best: Option<Map>, far: &Tris, found: Found| -> Option<Map> {
             let Found::Hit(t, h) = found else { return best };
-            let better = match best {
-                None => true,
-                Some(cur) => crate::guarantee::preferred(h.d.abs(), far.ids[t], cur.d.abs(), cur.face),
-            };
-            if better {
+            if best.is_none_or(|cur| crate::guarantee::preferred(h.d.abs(), far.ids[t], cur.d.abs(), cur.face)) {
                 Some(Map { face: far.ids[t], bary: h.bary, d: h.d })
             } else {
                 best
