@@ -4,7 +4,8 @@
 //!
 //! A dense triangle whose vertices map to several base faces is split in four, the new points
 //! solved like its vertices, until every piece lies on one face (at most MAX_SPLIT levels); a
-//! piece still straddling is drawn into each of its faces, projected onto that face's plane.
+//! piece still straddling is drawn into each of its corners' faces, the other corners unfolded
+//! into that face's plane across the edges between ([`unfold_across`]).
 //!
 //! Atlas: base triangles are taken in pairs, one square cell per pair (the first triangle in
 //! the lower-left half, the second in the upper-right half), cells row by row from the top-left.
@@ -195,7 +196,14 @@ pub fn fold_image(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: No
 #[allow(clippy::too_many_arguments)]
 fn paint(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMode, dmax: f64, atlas: &Atlas, acc: &[AtomicU32], owner: Option<&[[AtomicU32; 2]]>) {
     let bvh = Bvh::build(&base.positions, &base.faces);
-    let painter = Painter { atlas, base, bvh: &bvh, mode, dmax, acc, owner };
+    let mut edge_faces: std::collections::HashMap<(u32, u32), Vec<u32>> = std::collections::HashMap::new();
+    for (f, t) in base.faces.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            edge_faces.entry((a.min(b), a.max(b))).or_default().push(f as u32);
+        }
+    }
+    let painter = Painter { atlas, base, bvh: &bvh, edge_faces: &edge_faces, mode, dmax, acc, owner };
     (0..dense.faces.len()).into_par_iter().for_each_init(
         || (Scratch::default(), Vec::new(), Tris::default()),
         |(scratch, near, tris), df| {
@@ -228,6 +236,8 @@ struct Painter<'a> {
     atlas: &'a Atlas,
     base: &'a Base,
     bvh: &'a Bvh,
+    /// The base faces around each base edge (lower vertex id first).
+    edge_faces: &'a std::collections::HashMap<(u32, u32), Vec<u32>>,
     mode: NormalMode,
     dmax: f64,
     acc: &'a [AtomicU32],
@@ -237,6 +247,40 @@ struct Painter<'a> {
 impl Painter<'_> {
     fn corners(&self, f: u32) -> [glam::DVec3; 3] {
         self.base.faces[f as usize].map(|v| self.base.positions[v as usize])
+    }
+
+    /// Point `x` of face `g` laid out in the plane of face `f`: unfolded across the edge they
+    /// share; where they share only a vertex, across the two edges of a face `h` between them
+    /// (g → h → f); else projected. `None` where an unfolding meets a degenerate triangle.
+    fn lay_out(&self, g: u32, f: u32, x: glam::DVec3) -> Option<glam::DVec3> {
+        if let Some((p, q)) = self.shared_edge(g, f) {
+            return unfold_across(p, q, self.corners(g), self.corners(f), x);
+        }
+        let (vg, vf) = (self.base.faces[g as usize], self.base.faces[f as usize]);
+        let Some(&w) = vg.iter().find(|v| vf.contains(v)) else { return Some(x) };
+        // A face h with an edge (w, a) on g and an edge (w, b) on f: the fan between them.
+        for &a in vg.iter().filter(|&&a| a != w) {
+            let Some(around) = self.edge_faces.get(&(w.min(a), w.max(a))) else { continue };
+            for &h in around.iter().filter(|&&h| h != g) {
+                if self.shared_edge(h, f).is_some() {
+                    let (p, q) = self.shared_edge(g, h)?;
+                    let xh = unfold_across(p, q, self.corners(g), self.corners(h), x)?;
+                    let (p, q) = self.shared_edge(h, f)?;
+                    return unfold_across(p, q, self.corners(h), self.corners(f), xh);
+                }
+            }
+        }
+        Some(x)
+    }
+
+    /// The positions of the edge faces `f` and `g` share, when they share one.
+    fn shared_edge(&self, f: u32, g: u32) -> Option<(glam::DVec3, glam::DVec3)> {
+        let (vf, vg) = (self.base.faces[f as usize], self.base.faces[g as usize]);
+        let mut shared = vf.iter().filter(|v| vg.contains(v)).map(|&v| self.base.positions[v as usize]);
+        match (shared.next(), shared.next(), shared.next()) {
+            (Some(p), Some(q), None) => Some((p, q)),
+            _ => None,
+        }
     }
 
     /// Draws the dense (sub-)triangle `p` whose corners map to `m`.
@@ -277,7 +321,9 @@ impl Painter<'_> {
                 return;
             }
         }
-        // Still straddling: draw into each face, projected onto its plane.
+        // Still straddling: draw into each corner's face, the corners on other faces laid out
+        // in its chart (unfolded across the edges between; else projected onto its plane), so
+        // that the chart's own edges clip the piece to the part that lies on the face.
         let x = m.map(|mi| interpolate_direction(&self.corners(mi.face), &mi.bary));
         let mut drawn = [u32::MAX; 3];
         for k in 0..3 {
@@ -291,13 +337,43 @@ impl Painter<'_> {
                 if m[i].face == f {
                     return Some((m[i].bary[1], m[i].bary[2]));
                 }
-                barycentric(x[i], c[0], c[1], c[2]).map(|b| (b[1], b[2]))
+                let x = self.lay_out(m[i].face, f, x[i])?;
+                barycentric(x, c[0], c[1], c[2]).map(|b| (b[1], b[2]))
             };
             let (Some(a), Some(b), Some(cc)) = (uv(0), uv(1), uv(2)) else { continue };
             let pts = [self.atlas.position(f, a.0, a.1), self.atlas.position(f, b.0, b.1), self.atlas.position(f, cc.0, cc.1)];
             rasterise(self.atlas, f, pts, self.acc, self.owner.map(|o| (o, df)));
         }
     }
+}
+
+/// Point `x` of triangle `g` laid out in the plane of triangle `f`, the two unfolded about the
+/// edge `p`–`q` they share (an isometry of the hinge): `x` keeps its distance along the edge and
+/// from it, on the side away from `f`'s third corner. An orthogonal projection instead can put
+/// a point of `g` inside `f` where `f`'s plane is turned across `g` (a sliver of a base face,
+/// nearly a segment, whose plane may stand at any angle): it was drawn into `f` as if it lay
+/// there. `None` when either triangle is degenerate at the edge.
+///
+/// ```text
+///        r_f                    r_f
+///       /   \                  /   \
+///      p─────q    →  unfold   p─────q
+///       \ x /                  \ x'/     x' in f's plane, across p–q
+///        r_g  (bent away)       r_g'
+/// ```
+fn unfold_across(p: glam::DVec3, q: glam::DVec3, g: [glam::DVec3; 3], f: [glam::DVec3; 3], x: glam::DVec3) -> Option<glam::DVec3> {
+    let e = (q - p).normalize_or_zero();
+    // The unit direction in a triangle's plane, perpendicular to the edge, toward its third
+    // corner (the corner farthest from the edge's line).
+    let inward = |t: [glam::DVec3; 3]| -> Option<glam::DVec3> {
+        let off = t.map(|c| (c - p) - e * (c - p).dot(e));
+        let far = off.into_iter().max_by(|a, b| a.length_squared().total_cmp(&b.length_squared()))?;
+        let u = far.normalize_or_zero();
+        (u != glam::DVec3::ZERO && e != glam::DVec3::ZERO).then_some(u)
+    };
+    let (ug, uf) = (inward(g)?, inward(f)?);
+    let (s, t) = ((x - p).dot(e), (x - p).dot(ug));
+    Some(p + e * s - uf * t)
 }
 
 /// Adds 1 to every texel of face `f`'s chart whose centre lies in the triangle `pts` (either
@@ -350,6 +426,35 @@ fn rasterise(atlas: &Atlas, f: u32, mut pts: [(f64, f64); 3], acc: &[AtomicU32],
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A face `g` folded back over `f` (a dihedral of 45°, as at a sliver whose plane stands
+    /// across its neighbours'): projected onto f's plane, a point of g lands inside f; unfolded
+    /// about the shared edge, it lands across the edge, at its own distances.
+    ///
+    /// ```text
+    ///   side view along p–q (the x axis):   r_f (y = 1, z = 0)
+    ///                                      /
+    ///     r_g (y = 0.5, z = 0.5)  g ──── p,q ──── f
+    ///   g leans back over f; x on g at (0.3, 0.2, 0.2)
+    /// ```
+    #[test]
+    fn a_point_of_a_face_folded_over_its_neighbour_is_laid_out_across_the_shared_edge() {
+        use glam::DVec3;
+        let (p, q) = (DVec3::ZERO, DVec3::X);
+        let f = [p, q, DVec3::new(0.5, 1.0, 0.0)];
+        let g = [q, p, DVec3::new(0.5, 0.5, 0.5)];
+        let x = DVec3::new(0.3, 0.2, 0.2);
+        let b = |x: DVec3| barycentric(x, f[0], f[1], f[2]).unwrap();
+        // The projection onto f's plane, (0.3, 0.2, 0), is inside f: every weight positive.
+        assert!(b(DVec3::new(0.3, 0.2, 0.0)).iter().all(|&w| w > 0.0));
+        let u = unfold_across(p, q, g, f, x).unwrap();
+        // Same distance along the edge (0.3) and from it (0.2·√2), on the far side of f.
+        let d = 0.2 * 2f64.sqrt();
+        assert!((u - DVec3::new(0.3, -d, 0.0)).length() < 1e-12, "{u}");
+        assert!(b(u)[2] < 0.0, "across the edge p–q: f's third weight negative");
+        // A point on the shared edge stays where it is.
+        assert!((unfold_across(p, q, g, f, DVec3::new(0.7, 0.0, 0.0)).unwrap() - DVec3::new(0.7, 0.0, 0.0)).length() < 1e-15);
+    }
 
     #[test]
     fn atlas_covers_every_face_with_both_halves() {
