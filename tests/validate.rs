@@ -250,3 +250,35 @@ fn a_jump_at_a_fold_of_the_solution_path_is_a_tear() {
     assert_eq!(v["checks"]["jump_edges"], 100, "{v}");
     assert_eq!(v["checks"]["gap_edges"], 0, "{v}");
 }
+
+/// A base equal to its scan carries it: every dense point lies on L (d = 0) and each dense
+/// triangle's image is its own base face. A point on a base vertex is labelled with one of
+/// the faces around it (the lowest); the image loop of face 3 carries none of its own label,
+/// so the one-triangle chart must also try the face that holds the loop's vertices (before,
+/// the loop went to the star of vertex 0, whose boundary it runs along backwards: flipped, and
+/// `decimate` of an irreducible mesh exited 1).
+///
+/// ```text
+///          3             faces 0 (0,1,2), 1 (0,2,3), 2 (0,3,1), 3 (1,3,2)
+///         /|\            labels: vertex 0 → face 0, 1 → 0, 2 → 0, 3 → 1
+///        / | \           face 3 = (1,3,2) holds none of 0, 0, 1
+///       0--+--2
+///        \ | /
+///          1
+/// ```
+#[test]
+fn a_base_equal_to_its_scan_is_valid() {
+    let dir = tempdir("val-identity");
+    let tet = dir.join("tet.obj");
+    let v = [DVec3::ZERO, DVec3::X, DVec3::Y, DVec3::Z];
+    write_obj(&tet, &v, &[[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]]);
+    let (code, r, err) = validate(&dir, &tet, &tet, &[]);
+    assert_eq!(code, 0, "{err}");
+    let verdict = &r["verdict"];
+    assert_eq!((verdict["flipped"].as_u64(), verdict["torn"].as_u64(), verdict["unmapped"].as_u64()), (Some(0), Some(0), Some(0)), "{verdict}");
+    assert_eq!(verdict["max_abs_d"].as_f64(), Some(0.0));
+    // Nothing to collapse (a tetrahedron): the base is the scan, and the run says it carries it.
+    let out = dir.join("base.obj");
+    let o = run(&["decimate", tet.to_str().unwrap(), "-o", out.to_str().unwrap(), "--quiet"]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+}

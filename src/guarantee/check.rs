@@ -524,12 +524,22 @@ pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample], stars: &mut StarCach
     let mut faces: Vec<u32> = lp.iter().map(|s| s.m.face).collect();
     faces.sort_unstable();
     faces.dedup();
-    // One triangle: its barycentric plane.
-    for &f in &faces {
+    // One triangle: its barycentric plane. The faces the samples are labelled with first; then
+    // the face holding every sample's support, which no sample need be labelled with: a point
+    // on a base vertex or edge (d = 0 where L still passes through the scan) is labelled with
+    // one of the faces around it, and a loop along the three edges of a face may carry none
+    // of that face's labels (a base equal to its scan: every vertex on its lowest face).
+    let on_one = |f: u32| -> Option<Vec<DVec2>> {
         let t = ctx.face_info(f).verts;
-        let pts: Option<Vec<DVec2>> =
-            lp.iter().map(|s| on_face(&s.verts, &s.m.bary, &t).map(|b| DVec2::new(b[1], b[2]))).collect();
-        if let Some(pts) = pts {
+        lp.iter().map(|s| on_face(&s.verts, &s.m.bary, &t).map(|b| DVec2::new(b[1], b[2]))).collect()
+    };
+    for &f in &faces {
+        if let Some(pts) = on_one(f) {
+            return Some((polygon_positive(&pts), Chart::Triangle));
+        }
+    }
+    if let Some(f) = support_face(ctx, lp).filter(|f| !faces.contains(f)) {
+        if let Some(pts) = on_one(f) {
             return Some((polygon_positive(&pts), Chart::Triangle));
         }
     }
@@ -558,6 +568,26 @@ pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample], stars: &mut StarCach
 }
 
 /// A face around `w` on which sample `s` lies, with its barycentrics there.
+/// The base face holding the supports of all of `lp`'s samples (the vertices carrying them),
+/// when they are at most three vertices of one face.
+fn support_face<C: MapContext>(ctx: &C, lp: &[Sample]) -> Option<u32> {
+    let mut all = [0u32; 3];
+    let mut n = 0;
+    for s in lp {
+        let (sup, k) = support(&s.verts, &s.m.bary);
+        for &v in &sup[..k] {
+            if !all[..n].contains(&v) {
+                if n == 3 {
+                    return None;
+                }
+                all[n] = v;
+                n += 1;
+            }
+        }
+    }
+    ctx.face_containing(&all[..n])
+}
+
 fn star_face<C: MapContext>(ctx: &C, s: &Sample, w: u32) -> Option<(u32, [f64; 3])> {
     if s.verts.contains(&w) {
         return Some((s.m.face, s.m.bary));
