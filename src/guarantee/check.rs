@@ -567,7 +567,6 @@ pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample], stars: &mut StarCach
     chain_chart(ctx, lp).map(|pts| (polygon_positive(&pts), Chart::Chain))
 }
 
-/// A face around `w` on which sample `s` lies, with its barycentrics there.
 /// The base face holding the supports of all of `lp`'s samples (the vertices carrying them),
 /// when they are at most three vertices of one face.
 fn support_face<C: MapContext>(ctx: &C, lp: &[Sample]) -> Option<u32> {
@@ -588,6 +587,7 @@ fn support_face<C: MapContext>(ctx: &C, lp: &[Sample]) -> Option<u32> {
     ctx.face_containing(&all[..n])
 }
 
+/// A face around `w` on which sample `s` lies, with its barycentrics there.
 fn star_face<C: MapContext>(ctx: &C, s: &Sample, w: u32) -> Option<(u32, [f64; 3])> {
     if s.verts.contains(&w) {
         return Some((s.m.face, s.m.bary));
