@@ -196,14 +196,8 @@ pub fn fold_image(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: No
 #[allow(clippy::too_many_arguments)]
 fn paint(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMode, dmax: f64, atlas: &Atlas, acc: &[AtomicU32], owner: Option<&[[AtomicU32; 2]]>) {
     let bvh = Bvh::build(&base.positions, &base.faces);
-    let mut edge_faces: std::collections::HashMap<(u32, u32), Vec<u32>> = std::collections::HashMap::new();
-    for (f, t) in base.faces.iter().enumerate() {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            edge_faces.entry((a.min(b), a.max(b))).or_default().push(f as u32);
-        }
-    }
-    let painter = Painter { atlas, base, bvh: &bvh, edge_faces: &edge_faces, mode, dmax, acc, owner };
+    let (fan_start, fan) = crate::mesh::vertex_faces(base.positions.len(), &base.faces);
+    let painter = Painter { atlas, base, bvh: &bvh, fan_start: &fan_start, fan: &fan, mode, dmax, acc, owner };
     (0..dense.faces.len()).into_par_iter().for_each_init(
         || (Scratch::default(), Vec::new(), Tris::default()),
         |(scratch, near, tris), df| {
@@ -236,8 +230,9 @@ struct Painter<'a> {
     atlas: &'a Atlas,
     base: &'a Base,
     bvh: &'a Bvh,
-    /// The base faces around each base edge (lower vertex id first).
-    edge_faces: &'a std::collections::HashMap<(u32, u32), Vec<u32>>,
+    /// The base faces around each base vertex v: `fan[fan_start[v]..fan_start[v + 1]]`.
+    fan_start: &'a [u32],
+    fan: &'a [u32],
     mode: NormalMode,
     dmax: f64,
     acc: &'a [AtomicU32],
@@ -258,15 +253,14 @@ impl Painter<'_> {
         }
         let (vg, vf) = (self.base.faces[g as usize], self.base.faces[f as usize]);
         let Some(&w) = vg.iter().find(|v| vf.contains(v)) else { return Some(x) };
-        // A face h with an edge (w, a) on g and an edge (w, b) on f: the fan between them.
+        // A face h across an edge (w, a) of g, in the order of g's corners, that shares an edge
+        // with f: the fan between them.
+        let around = &self.fan[self.fan_start[w as usize] as usize..self.fan_start[w as usize + 1] as usize];
         for &a in vg.iter().filter(|&&a| a != w) {
-            let Some(around) = self.edge_faces.get(&(w.min(a), w.max(a))) else { continue };
-            for &h in around.iter().filter(|&&h| h != g) {
-                if self.shared_edge(h, f).is_some() {
-                    let (p, q) = self.shared_edge(g, h)?;
-                    let xh = unfold_across(p, q, self.corners(g), self.corners(h), x)?;
-                    let (p, q) = self.shared_edge(h, f)?;
-                    return unfold_across(p, q, self.corners(h), self.corners(f), xh);
+            for &h in around.iter().filter(|&&h| h != g && self.base.faces[h as usize].contains(&a)) {
+                if let (Some((p1, q1)), Some((p2, q2))) = (self.shared_edge(g, h), self.shared_edge(h, f)) {
+                    let xh = unfold_across(p1, q1, self.corners(g), self.corners(h), x)?;
+                    return unfold_across(p2, q2, self.corners(h), self.corners(f), xh);
                 }
             }
         }
