@@ -214,3 +214,40 @@ fn bench_reports_bad_input_from_either_process() {
     assert!(err.contains("cannot write") && err.contains("tet.obj-Cpu1.obj"), "{err}");
     assert!(!err.contains("panicked") && !err.contains("bench process"), "{err}");
 }
+
+/// Never lose the user's data: an output named like an input — the same path, a symlink to it —
+/// or like another output is refused before any work (exit 2, both named), and the input stays
+/// byte for byte. Before this, `decimate scan.obj -o scan.obj` replaced the scan by its base.
+#[test]
+fn an_output_on_an_input_is_refused_and_the_input_kept() {
+    let d = tempdir("output-on-input");
+    let scan = write(&d, "scan.obj", &format!("{TET_V}f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"));
+    let before = std::fs::read(&scan).unwrap();
+    let s = scan.to_str().unwrap();
+    let link = d.join("link.obj");
+    std::os::unix::fs::symlink(&scan, &link).unwrap();
+    let base = d.join("base.obj");
+    let refused = |args: &[&str], named: &str, says: &str| {
+        let o = run(args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(named) && err.contains(says), "{args:?} must name {named} and say '{says}': {err}");
+        assert_eq!(std::fs::read(&scan).unwrap(), before, "{args:?} changed the scan");
+    };
+    refused(&["decimate", s, "-o", s], "scan.obj", "would overwrite the input");
+    refused(&["decimate", s, "-o", base.to_str().unwrap(), "--report", link.to_str().unwrap()], "link.obj", "would overwrite the input");
+    refused(&["decimate", s, "-o", base.to_str().unwrap(), "--map", base.to_str().unwrap()], "base.obj", "both the base mesh and the map");
+    assert!(!base.exists(), "nothing written by a refused run");
+    // A real base, then the other commands pointed back at their inputs.
+    let o = run(&["decimate", s, "-o", base.to_str().unwrap(), "-q"]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let base_before = std::fs::read(&base).unwrap();
+    let b = base.to_str().unwrap();
+    refused(&["validate", s, b, "--json", b], "base.obj", "would overwrite the input");
+    refused(&["validate", s, b, "--fold-image", s], "scan.obj", "would overwrite the input");
+    let disp = d.join("disp.png");
+    let o = run(&["bake", s, b, "-o", disp.to_str().unwrap(), "--resolution", "64"]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    refused(&["reconstruct", b, disp.to_str().unwrap(), "--levels", "1", "-o", b], "base.obj", "would overwrite the input");
+    assert_eq!(std::fs::read(&base).unwrap(), base_before, "the base is kept");
+}

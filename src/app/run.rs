@@ -11,6 +11,7 @@ use crate::mesh::{self, write_atomic};
 use crate::maps::bake::Kind;
 use crate::settings::{Flags, Settings};
 use crate::Error;
+use crate::app::outputs::check_outputs;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -162,6 +163,11 @@ pub fn decimate(job: &DecimateJob) -> Result<Report, Error> {
     if job.options.max_valence < 3 {
         return Err(Error::Usage("--max-valence must be at least 3".into()));
     }
+    let mut outs = vec![("the base mesh", job.output.as_path())];
+    outs.extend(job.map.as_deref().map(|p| ("the map", p)));
+    outs.extend(job.report.as_deref().map(|p| ("the report", p)));
+    outs.extend(job.repaired.as_deref().map(|p| ("the repaired scan", p)));
+    check_outputs(&[&job.input], &outs)?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(job.threads.unwrap_or(0))
         .build()
@@ -448,6 +454,10 @@ fn check_resolution(resolution: u32) -> Result<(), Error> {
 pub fn validate(job: &ValidateJob) -> Result<ValidateReport, Error> {
     check_dmax(job.flags.dmax)?;
     check_resolution(job.resolution)?;
+    let mut outs = Vec::new();
+    outs.extend(job.json.as_deref().map(|p| ("the report", p)));
+    outs.extend(job.fold_image.as_deref().map(|p| ("the fold image", p)));
+    check_outputs(&[&job.high, &job.base], &outs)?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(job.threads.unwrap_or(0))
         .build()
@@ -673,6 +683,20 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
     }
     check_resolution(job.resolution)?;
     check_dmax(job.flags.dmax)?;
+    // DISP.obj goes beside the map: named after the base, it would replace it (say how not to).
+    let uv_mesh = out.with_extension("obj");
+    let mut inputs = vec![job.high.as_path(), job.base.as_path()];
+    inputs.extend(job.map.as_deref());
+    if let Err(Error::Usage(_)) = check_outputs(&inputs, &[("the base with the map's UVs", &uv_mesh)]) {
+        return Err(Error::Usage(format!(
+            "{}: the base with the map's UVs goes to {}, which is an input; name the map otherwise (e.g. {})",
+            out.display(),
+            uv_mesh.display(),
+            out.with_file_name(format!("{}-disp.{ext}", out.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default())).display()
+        )));
+    }
+    let side_path = crate::maps::bake::sidecar_path(out);
+    check_outputs(&inputs, &[("the map's sidecar", &side_path), ("the base with the map's UVs", &uv_mesh), ("the displacement map", out)])?;
     let Pair { base: loaded, high: scan, normals, dmax, warnings, .. } = load_pair(&job.high, &job.base, &job.flags)?;
     let b = &loaded.base;
     let dense = mesh::DenseData::new(&scan.positions, &scan.faces);
@@ -709,19 +733,6 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
         "exr" => (map.to_exr(job.kind, dmax).map_err(|e| Error::Output { path: out.display().to_string(), msg: e })?, map.sidecar(job.kind)),
         _ => map.to_png16(job.kind),
     };
-    let uv_mesh = out.with_extension("obj");
-    let same = |a: &std::path::Path, b: &std::path::Path| match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
-        (Ok(x), Ok(y)) => x == y,
-        _ => a == b,
-    };
-    if same(&uv_mesh, &job.base) || same(&uv_mesh, &job.high) {
-        return Err(Error::Usage(format!(
-            "{}: the base with the map's UVs goes to {}, which is an input; name the map otherwise (e.g. {})",
-            out.display(),
-            uv_mesh.display(),
-            out.with_file_name(format!("{}-disp.{ext}", out.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default())).display()
-        )));
-    }
     let header = format!(
         "dispdec base mesh with the UVs of {} ({} map, {} texels a side; vt: u right, v up)\n{}",
         out.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default(),
@@ -732,7 +743,7 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
     let obj = mesh::obj_with_uvs(&b.positions, &b.directions, &b.faces, |f, k| map.atlas.uv_up(f, k), &header);
     let side_json = serde_json::to_string_pretty(&side).expect("sidecar");
     mesh::write_all_atomic(&[
-        (crate::maps::bake::sidecar_path(out).as_path(), side_json.as_bytes()),
+        (side_path.as_path(), side_json.as_bytes()),
         (uv_mesh.as_path(), obj.as_bytes()),
         (out.as_path(), &bytes),
     ])?;
@@ -769,6 +780,12 @@ pub fn reconstruct(
     if levels > 6 {
         return Err(Error::Usage(format!("--levels must be 0 to 6, got {levels}")));
     }
+    let side = crate::maps::bake::sidecar_path(disp);
+    let mut inputs = vec![base, disp, side.as_path()];
+    inputs.extend(compare);
+    let mut outs = vec![("the rebuilt mesh", out)];
+    outs.extend(plot.map(|p| ("the error plot", p)));
+    check_outputs(&inputs, &outs)?;
     let loaded = load_base_with_directions(base)?;
     let flags = Flags { normals, ..Default::default() };
     let r = crate::settings::resolve(&flags, loaded.settings.as_ref(), &base.display().to_string());
@@ -817,6 +834,7 @@ pub fn export(base: &std::path::Path, disp: &std::path::Path, out: &std::path::P
     if levels.is_some_and(|l| l > 6) {
         return Err(Error::Usage(format!("--levels must be 0 to 6, got {}", levels.unwrap_or(0))));
     }
+    check_outputs(&[base, disp, crate::maps::bake::sidecar_path(disp).as_path()], &[("the glTF", out)])?;
     let loaded = load_base_with_directions(base)?;
     let r = crate::settings::resolve(&Flags::default(), loaded.settings.as_ref(), &base.display().to_string());
     let b = &loaded.base;
@@ -849,6 +867,7 @@ pub fn render(meshes: &[PathBuf], out: &std::path::Path, view: crate::gpu::rende
             loaded.push((b.positions, b.faces));
         }
     }
+    check_outputs(&meshes.iter().map(PathBuf::as_path).collect::<Vec<_>>(), &[("the picture", out)])?;
     let gpu = crate::gpu::Gpu::open_primary()?;
     let (w, h, rgba) = crate::gpu::render::render(&gpu, &loaded, &view)?;
     write_atomic(out, &crate::gpu::render::png_rgba(w, h, &rgba))?;
