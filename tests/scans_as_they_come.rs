@@ -219,7 +219,7 @@ fn repair_is_explicit_counted_and_judged_against_what_was_decimated() {
     }
     let fins = d.join("fins.obj");
     write_obj(&fins, &v2, &f2);
-    let (code, _, err, _) = decimate(&d, &fins, "fins", &["--repair"]);
+    let (code, _, err, _) = decimate(&d, &fins, "fins-base", &["--repair"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("more than 1 %") && err.contains("edge between vertices"), "{err}");
 }
@@ -268,6 +268,9 @@ fn obj_readers_tolerate_what_exporters_write() {
             format!("cstype bezier\nvp 0.1 0.2\n{vs}l 1 2\np 3\n{}curv 0 1 1 2\nend\n", fs(&|w, _| (w + 1).to_string())).into_bytes(),
         ),
         ("crlf-continued.obj", format!("{vs}{}", fs(&|w, _| (w + 1).to_string())).replace("\n", "\r\n").replacen("f ", "f \\\r\n", 1).into_bytes()),
+        // A UTF-8 byte-order mark before the first `v` (it hid that vertex: "face references
+        // vertex N, but only N−1 are defined").
+        ("bom.obj", format!("\u{feff}{vs}{}", fs(&|w, _| (w + 1).to_string())).into_bytes()),
     ];
     for (name, bytes) in cases {
         let p = d.join(name);
@@ -279,7 +282,7 @@ fn obj_readers_tolerate_what_exporters_write() {
     // A real error still names its line.
     let bad = d.join("bad.obj");
     std::fs::write(&bad, format!("usemtl Gr\u{fc}n\nv 0 0 0\nv 1 x 0\n{}", "f 1 2 3\n")).unwrap();
-    let (code, _, err, _) = decimate(&d, &bad, "bad", &[]);
+    let (code, _, err, _) = decimate(&d, &bad, "bad-base", &[]);
     assert_eq!(code, 2);
     assert!(err.contains("line 3") && err.contains("'x' is not a number"), "{err}");
 }
@@ -302,10 +305,14 @@ fn ply_header_lines_that_are_not_keywords_are_skipped_with_a_warning() {
     std::fs::write(&good, body("comment fine\n")).unwrap();
     let odd = d.join("odd.ply");
     std::fs::write(&odd, body("author: a scanner\nTextureFile scan.png\n")).unwrap();
+    let bom = d.join("bom.ply");
+    std::fs::write(&bom, format!("\u{feff}{}", body("comment fine\n"))).unwrap();
     let (c0, r0, e0, b0) = decimate(&d, &good, "good", &[]);
     let (c1, r1, e1, b1) = decimate(&d, &odd, "odd", &[]);
-    assert_eq!((c0, c1), (0, 0), "{e0}\n{e1}");
+    let (c2, _, e2, b2) = decimate(&d, &bom, "bom", &[]);
+    assert_eq!((c0, c1, c2), (0, 0, 0), "{e0}\n{e1}\n{e2}");
     assert_eq!(geometry(&b0), geometry(&b1));
+    assert_eq!(geometry(&b0), geometry(&b2), "a byte-order mark before 'ply' is no part of it");
     assert_eq!(r0["warnings"].as_array().unwrap().len(), 0);
     let w = r1["warnings"].as_array().unwrap();
     assert_eq!(w.len(), 2, "{w:?}");

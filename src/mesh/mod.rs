@@ -105,10 +105,19 @@ impl<R: Read> Read for GzErrors<R> {
     }
 }
 
+/// The UTF-8 byte-order mark.
+const UTF8_BOM: &[u8] = b"\xef\xbb\xbf";
+
 /// Loads an OBJ or PLY file (plain or gzip-compressed) as written, without checks.
 pub fn load_raw(path: &Path) -> Result<Mesh, Error> {
     let mut r = open_maybe_gz(path)?;
-    let head = r.fill_buf().map_err(|e| input_err(path, e.to_string()))?;
+    let mut head = r.fill_buf().map_err(|e| input_err(path, e.to_string()))?;
+    // A UTF-8 byte-order mark (some Windows exporters write one) is no part of the first line:
+    // read as text it hid the first `v` (and every face then named one vertex too many).
+    if head.starts_with(UTF8_BOM) {
+        r.consume(UTF8_BOM.len());
+        head = r.fill_buf().map_err(|e| input_err(path, e.to_string()))?;
+    }
     if head.is_empty() {
         return Err(input_err(path, "file is empty"));
     }
