@@ -79,6 +79,7 @@ mod tests {
         d
     }
 
+    #[cfg(unix)]
     #[test]
     fn an_output_on_an_input_under_any_name_is_refused() {
         let d = dir("names");

@@ -856,6 +856,7 @@ pub fn render(meshes: &[PathBuf], out: &std::path::Path, view: crate::gpu::rende
     if !(16..=4096).contains(&view.size) {
         return Err(Error::Usage(format!("--size must be between 16 and 4096, got {}", view.size)));
     }
+    check_outputs(&meshes.iter().map(PathBuf::as_path).collect::<Vec<_>>(), &[("the picture", out)])?;
     let mut loaded = Vec::new();
     for p in meshes {
         if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb")) {
@@ -867,7 +868,6 @@ pub fn render(meshes: &[PathBuf], out: &std::path::Path, view: crate::gpu::rende
             loaded.push((b.positions, b.faces));
         }
     }
-    check_outputs(&meshes.iter().map(PathBuf::as_path).collect::<Vec<_>>(), &[("the picture", out)])?;
     let gpu = crate::gpu::Gpu::open_primary()?;
     let (w, h, rgba) = crate::gpu::render::render(&gpu, &loaded, &view)?;
     write_atomic(out, &crate::gpu::render::png_rgba(w, h, &rgba))?;
