@@ -610,6 +610,7 @@ fn run(cli: Cli) -> Result<i32> {
                 runs,
                 work: work.unwrap_or_else(|| std::env::temp_dir().join(format!("dispdec-bench-{}", std::process::id()))),
                 exe: std::env::current_exe()?,
+                json: json.clone(),
             };
             let report = dispdec::app::bench::bench(&job, |line| say.line(line))?;
             print!("{}", dispdec::app::bench::table(&report));

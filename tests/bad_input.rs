@@ -249,5 +249,6 @@ fn an_output_on_an_input_is_refused_and_the_input_kept() {
     let o = run(&["bake", s, b, "-o", disp.to_str().unwrap(), "--resolution", "64"]);
     assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
     refused(&["reconstruct", b, disp.to_str().unwrap(), "--levels", "1", "-o", b], "base.obj", "would overwrite the input");
+    refused(&["bench", "--meshes", s, "--configs", "cpu1", "--json", s, "--work", d.join("work").to_str().unwrap()], "scan.obj", "would overwrite the input");
     assert_eq!(std::fs::read(&base).unwrap(), base_before, "the base is kept");
 }

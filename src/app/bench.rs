@@ -56,6 +56,9 @@ pub struct BenchJob {
     /// The `dispdec` executable each run is measured in: `dispdec bench-run` ([`run_one`]) in a
     /// process of its own.
     pub exe: PathBuf,
+    /// Where the caller will write the JSON report: refused before any run if it is one of the
+    /// scans.
+    pub json: Option<PathBuf>,
 }
 
 /// One decimation as `dispdec bench-run` measures it, in its own process.
@@ -256,13 +259,21 @@ fn machine_name() -> String {
 
 
 /// The input file of a mesh name (the 1M sample is generated into `work` once).
-fn mesh_path(job: &BenchJob, name: &str) -> Result<PathBuf, Error> {
-    let file = match name {
+/// The scans' own file names, by the names `--meshes` knows.
+fn known_scan(name: &str) -> Option<&'static str> {
+    Some(match name {
         "bunny" => "bunny.ply.gz",
         "horse" => "horse.ply.gz",
         "igea" => "igea.ply.gz",
         "turbineblade" => "turbineblade.ply.gz",
-        "sample1m" => {
+        _ => return None,
+    })
+}
+
+fn mesh_path(job: &BenchJob, name: &str) -> Result<PathBuf, Error> {
+    let file = match (known_scan(name), name) {
+        (Some(file), _) => file,
+        (None, "sample1m") => {
             let p = job.work.join("sample-1m.obj");
             if !p.exists() {
                 let m = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 1_000_000, seed: 1 });
@@ -272,8 +283,8 @@ fn mesh_path(job: &BenchJob, name: &str) -> Result<PathBuf, Error> {
             return Ok(p);
         }
         // Any other name is a mesh file of the user's.
-        other if Path::new(other).is_file() => return Ok(PathBuf::from(other)),
-        other => {
+        (None, other) if Path::new(other).is_file() => return Ok(PathBuf::from(other)),
+        (None, other) => {
             return Err(Error::Usage(format!(
                 "bench: {other:?} is neither a known mesh (bunny, horse, igea, turbineblade, sample1m) nor a file"
             )))
@@ -318,6 +329,10 @@ impl QuadricInput {
 
 /// Runs the benchmark; `progress` gets one line per finished run.
 pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchReport, Error> {
+    if let Some(json) = &job.json {
+        let scans: Vec<PathBuf> = job.meshes.iter().map(|m| known_scan(m).map_or_else(|| PathBuf::from(m), |f| job.data.join(f))).collect();
+        crate::app::outputs::check_outputs(&scans.iter().map(PathBuf::as_path).collect::<Vec<_>>(), &[("the report", json)])?;
+    }
     std::fs::create_dir_all(&job.work).map_err(|e| Error::Output { path: job.work.display().to_string(), msg: e.to_string() })?;
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     let mut rows = Vec::new();
