@@ -258,7 +258,6 @@ fn machine_name() -> String {
 }
 
 
-/// The input file of a mesh name (the 1M sample is generated into `work` once).
 /// The scans' own file names, by the names `--meshes` knows.
 fn known_scan(name: &str) -> Option<&'static str> {
     Some(match name {
@@ -270,6 +269,7 @@ fn known_scan(name: &str) -> Option<&'static str> {
     })
 }
 
+/// The input file of a mesh name (the 1M sample is generated into `work` once).
 fn mesh_path(job: &BenchJob, name: &str) -> Result<PathBuf, Error> {
     let file = match (known_scan(name), name) {
         (Some(file), _) => file,
