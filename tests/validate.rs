@@ -235,7 +235,9 @@ fn fixtures_are_judged_and_the_exhaustive_mode_agrees() {
 /// primary moves to another sheet) the stretch on the fold's side grows without bound, so that
 /// rule passed any gap there, and that base's own global check found it valid. With the smaller
 /// stretch such pieces are bisected until the jump is certain: 100 jump edges, 145 torn
-/// triangles (measured; no other failure).
+/// triangles (measured; no other failure). Since pieces whose ends' faces share only a vertex
+/// are split where the image leaves its face instead of at their midpoints, 104 and 151: those
+/// samples land on 4 jumps the midpoints passed over.
 #[test]
 fn a_jump_at_a_fold_of_the_solution_path_is_a_tear() {
     let dir = tempdir("val-fold");
@@ -246,8 +248,8 @@ fn a_jump_at_a_fold_of_the_solution_path_is_a_tear() {
     let (code, r, err) = validate(&dir, &scan, &base, &["--backend", "cpu"]);
     assert_eq!(code, 1, "{err}");
     let v = &r["verdict"];
-    assert_eq!((v["unmapped"].as_u64(), v["flipped"].as_u64(), v["torn"].as_u64()), (Some(0), Some(0), Some(145)), "{v}");
-    assert_eq!(v["checks"]["jump_edges"], 100, "{v}");
+    assert_eq!((v["unmapped"].as_u64(), v["flipped"].as_u64(), v["torn"].as_u64()), (Some(0), Some(0), Some(151)), "{v}");
+    assert_eq!(v["checks"]["jump_edges"], 104, "{v}");
     assert_eq!(v["checks"]["gap_edges"], 0, "{v}");
 }
 
