@@ -90,12 +90,13 @@ fn horse_rebuilt_at_level_five_matches_the_scan() {
         .and_then(|t| t.split(',').next())
         .and_then(|t| t.trim().parse().ok())
         .unwrap_or_else(|| panic!("no agreement line: {said}"));
-    // Measured on the 326-face base: RMS 2.02e-5, max 1.40e-3 (where the image folds and two
-    // sheets cover a point; on the 336-face base before exact ties 3.53e-5 and 3.33e-3, on the
-    // 338-face base before the fold rule 2.1e-5 and 1.6e-3); bounds 1.5x that.
+    // Measured on the 308-face base: RMS 2.19e-5, max 1.01e-3 (where the image folds and two
+    // sheets cover a point; on the 326-face base of the release before 2.02e-5 and 1.40e-3, on
+    // the 336-face base before exact ties 3.53e-5 and 3.33e-3, on the 338-face base before the
+    // fold rule 2.1e-5 and 1.6e-3); bounds about 1.4x that.
     assert!(rms < 3.0e-5, "{said}");
     let max: f64 = said.split(", max ").nth(1).and_then(|t| t.split(';').next()).and_then(|t| t.trim().parse().ok()).unwrap();
-    assert!(max < 2.1e-3, "{said}");
+    assert!(max < 1.5e-3, "{said}");
     assert!(said.contains(" 0 where the map has no d"), "{said}");
     let b = dispdec::app::run::load_base_with_directions(&base).unwrap().base;
     let map = DispMap::read(&disp, b.faces.len()).unwrap();
@@ -109,8 +110,9 @@ fn horse_rebuilt_at_level_five_matches_the_scan() {
         assert!(rms < last_rms, "the error falls with every level: {d:?}");
         last_rms = rms;
         if level == 5 {
-            // Measured on the 326-face base: RMS 1.5e-5 / 1.15e-4, Hausdorff 6.4e-4 / 1.5e-3
-            // (to / from the scan); bounds about 3x that, well inside the paper's 0.1 % and 1 %.
+            // Measured on the 308-face base: RMS 1.6e-5 / 1.19e-4, Hausdorff 7.6e-4 / 2.0e-3
+            // (to / from the scan; the 326-face base before: 1.5e-5 / 1.15e-4, 6.4e-4 / 1.5e-3);
+            // bounds 2.5-3x that, well inside the paper's 0.1 % and 1 %.
             assert!(d.rms_to_scan <= 5e-5 && d.rms_from_scan <= 3.5e-4, "{d:?}");
             assert!(d.hausdorff_to_scan <= 2e-3 && d.hausdorff_from_scan <= 5e-3, "{d:?}");
         }

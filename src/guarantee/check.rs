@@ -389,26 +389,17 @@ fn refine<C: MapContext>(
         Relation::Edge => consistent && depth >= CROSS_DEPTH,
         Relation::Vertex | Relation::Apart => false,
     };
-    if rel == Relation::Edge && depth < MAX_DEPTH && depth >= floors.min_depth {
-        // Exact first: split where x0's solution path leaves its triangle through the shared
-        // edge. The image is continuous there when the primary at that point lies on the edge
-        // and x1's solution path *enters* its triangle there; if it left it instead, the two
-        // shells overlap before the crossing and the primary jumps (bisected below).
-        if let Some(sm) = split_at_crossing(ctx, x0, &s0, x1, &s1, normals, scratch, e) {
-            let xm = x0 + sm.0 * (x1 - x0);
-            refine(ctx, x0, s0, xm, sm.1, e, normals, depth + 1, floors, scratch, out, jump);
-            refine(ctx, xm, sm.1, x1, s1, e, normals, depth + 1, floors, scratch, out, jump);
-            return;
-        }
-    }
-    if rel == Relation::Vertex && depth < MAX_DEPTH && depth >= floors.min_depth {
-        // Likewise where the ends' faces share only a vertex: split where x0's solution path
-        // leaves its triangle towards the other end, onto the next face of the fan, instead
-        // of bisecting until the pieces' ends share an edge.
-        if let Some(sm) = split_toward_vertex(ctx, x0, &s0, x1, &s1, normals, scratch, e) {
-            let xm = x0 + sm.0 * (x1 - x0);
-            refine(ctx, x0, s0, xm, sm.1, e, normals, depth + 1, floors, scratch, out, jump);
-            refine(ctx, xm, sm.1, x1, s1, e, normals, depth + 1, floors, scratch, out, jump);
+    if depth < MAX_DEPTH && depth >= floors.min_depth {
+        // Exact first: split where x0's solution path leaves its triangle — through the shared
+        // edge, or (ends on faces that share only a vertex) onto the next face of that vertex's
+        // fan, instead of bisecting until the pieces' ends share an edge. Across an edge the
+        // image is continuous there when the primary at that point lies on the edge and x1's
+        // solution path *enters* its triangle there; if it left it instead, the two shells
+        // overlap before the crossing and the primary jumps (bisected below).
+        if let Some((t, sm)) = split_at_exit(ctx, rel, x0, &s0, x1, &s1, normals, scratch, e) {
+            let xm = x0 + t * (x1 - x0);
+            refine(ctx, x0, s0, xm, sm, e, normals, depth + 1, floors, scratch, out, jump);
+            refine(ctx, xm, sm, x1, s1, e, normals, depth + 1, floors, scratch, out, jump);
             return;
         }
     }
@@ -460,48 +451,14 @@ fn consistent_on_common_face<C: MapContext>(ctx: &C, s0: &Sample, s1: &Sample, e
     sigma.is_finite() && gap <= STRETCH_RATIO * sigma * len
 }
 
-/// The crossing of a piece between edge-adjacent triangles, when it proves the image continuous
-/// there: (t, sample at the crossing).
-#[allow(clippy::too_many_arguments)]
-fn split_at_crossing<C: MapContext>(
-    ctx: &C,
-    x0: DVec3,
-    s0: &Sample,
-    x1: DVec3,
-    s1: &Sample,
-    normals: &[DVec3],
-    scratch: &mut Scratch,
-    e: DVec3,
-) -> Option<(f64, Sample)> {
-    let (t1, t2) = (ctx.face_info(s0.m.face), ctx.face_info(s1.m.face));
-    let k1 = (0..3).find(|&k| !t2.verts.contains(&t1.verts[k]))?;
-    let k2 = (0..3).find(|&k| !t1.verts.contains(&t2.verts[k]))?;
-    let t = edge_crossing(&t1, s0.m, k1, x0, x1, ctx.mode(), ctx.dmax())?;
-    if !(t > CROSSING_TOL && t < 1.0 - CROSSING_TOL) {
-        return None;
-    }
-    let xm = x0 + t * (x1 - x0);
-    let mm = ctx.solve_point(xm, normals, s0.m.face, s1.m.face, scratch)?;
-    let sm = make_sample(ctx, mm, e);
-    // The primary there lies on the shared edge (on both triangles)...
-    let on2 = sample_on_face(ctx, &sm, s1.m.face, &t2.verts)?;
-    sample_on_face(ctx, &sm, s0.m.face, &t1.verts)?;
-    // ...and x1's triangle is entered, not left, at the crossing.
-    let m2 = Map { face: s1.m.face, bary: on2, d: mm.d };
-    let rate2 = bary_rates(&t2, &m2, ctx.mode(), x1 - x0)?[k2];
-    if !(rate2 > 0.0) {
-        return None;
-    }
-    Some((t, sm))
-}
-
-/// The exit of a piece from its first end's triangle t1 when the other end's triangle shares
-/// only a vertex w with it: where x0's solution path leaves t1 across one of its two edges at w,
-/// when the primary there lies on that edge and the face across it is entered, not left (the
-/// test of [`split_at_crossing`]); the sample is labelled with that next face of w's fan, so
-/// that the rest of the piece starts there. `None` sends the piece to bisection. One solve
-/// where bisection took about three (a midpoint on the fan, then a crossing split on each side;
-/// the bunny has 2.3M such pieces in a run).
+/// Where a piece's first end x0 leaves its triangle t1 towards the other end, when that proves
+/// the image continuous there: (t, the sample there). Ends on edge-adjacent triangles: the
+/// crossing of their shared edge. Ends on triangles that share only a vertex w: the first of
+/// t1's two edges at w that the path crosses, onto the next face of w's fan; the sample is
+/// labelled with that face, so that the rest of the piece starts there (one solve where
+/// bisection took about three — a midpoint on the fan, then a crossing on either side; the
+/// bunny has 2.3M such pieces in a run). Either way the primary at that point must lie on the
+/// edge (on both faces) and the face across it must be entered, not left.
 ///
 /// ```text
 ///        t1   /  next  \   t2        x0 on t1, x1 on t2: t1 and t2 share only w;
@@ -509,8 +466,9 @@ fn split_at_crossing<C: MapContext>(
 ///           \    w     /             of the fan there, and goes on from that sample
 /// ```
 #[allow(clippy::too_many_arguments)]
-fn split_toward_vertex<C: MapContext>(
+fn split_at_exit<C: MapContext>(
     ctx: &C,
+    rel: Relation,
     x0: DVec3,
     s0: &Sample,
     x1: DVec3,
@@ -520,39 +478,43 @@ fn split_toward_vertex<C: MapContext>(
     e: DVec3,
 ) -> Option<(f64, Sample)> {
     let t1 = ctx.face_info(s0.m.face);
-    let kw = (0..3).find(|&k| s1.verts.contains(&t1.verts[k]))?;
-    let w = t1.verts[kw];
-    // The first of t1's two edges at w that the path crosses (edge k lies opposite corner k).
-    let mut exit: Option<(f64, usize)> = None;
-    for k in (0..3).filter(|&k| k != kw) {
-        if let Some(t) = edge_crossing(&t1, s0.m, k, x0, x1, ctx.mode(), ctx.dmax()) {
-            if exit.is_none_or(|(te, _)| t < te) {
-                exit = Some((t, k));
-            }
+    let crossing = |k: usize| edge_crossing(&t1, s0.m, k, x0, x1, ctx.mode(), ctx.dmax());
+    // (t, the face entered there, whether the sample takes that face's label)
+    let (t, next, relabel) = match rel {
+        Relation::Edge => {
+            let k1 = (0..3).find(|&k| !s1.verts.contains(&t1.verts[k]))?;
+            (crossing(k1)?, s1.m.face, false)
         }
-    }
-    let (t, k) = exit?;
+        Relation::Vertex => {
+            let kw = (0..3).find(|&k| s1.verts.contains(&t1.verts[k]))?;
+            // The first of t1's two edges at w that the path crosses (edge k lies opposite
+            // corner k), and the face across it (w and a).
+            let (t, k) = (0..3).filter(|&k| k != kw).filter_map(|k| crossing(k).map(|t| (t, k))).min_by(|a, b| a.0.total_cmp(&b.0))?;
+            let (w, a) = (t1.verts[kw], t1.verts[3 - k - kw]);
+            let mut fan = Vec::new();
+            ctx.faces_around(w, &mut fan);
+            (t, fan.into_iter().find(|&f| f != s0.m.face && ctx.face_info(f).verts.contains(&a))?, true)
+        }
+        Relation::Same | Relation::Apart => return None,
+    };
     if !(t > CROSSING_TOL && t < 1.0 - CROSSING_TOL) {
         return None;
     }
-    // The face across that edge (w and a).
-    let a = t1.verts[3 - k - kw];
-    let mut fan = Vec::new();
-    ctx.faces_around(w, &mut fan);
-    let next = fan.into_iter().find(|&f| f != s0.m.face && ctx.face_info(f).verts.contains(&a))?;
     let tn = ctx.face_info(next);
-    let kn = (0..3).find(|&j| tn.verts[j] != w && tn.verts[j] != a)?;
+    let kn = (0..3).find(|&k| !t1.verts.contains(&tn.verts[k]))?;
     let xm = x0 + t * (x1 - x0);
     let mm = ctx.solve_point(xm, normals, s0.m.face, next, scratch)?;
     let sm = make_sample(ctx, mm, e);
+    // The primary there lies on the shared edge (on both triangles)...
     let on_next = sample_on_face(ctx, &sm, next, &tn.verts)?;
     sample_on_face(ctx, &sm, s0.m.face, &t1.verts)?;
+    // ...and the next triangle is entered, not left, there.
     let m_next = Map { face: next, bary: on_next, d: mm.d };
     let rate = bary_rates(&tn, &m_next, ctx.mode(), x1 - x0)?[kn];
     if !(rate > 0.0) {
         return None;
     }
-    Some((t, make_sample(ctx, m_next, e)))
+    Some((t, if relabel { make_sample(ctx, m_next, e) } else { sm }))
 }
 
 /// Which chart decided a dense triangle's orientation.
