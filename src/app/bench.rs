@@ -269,29 +269,35 @@ fn known_scan(name: &str) -> Option<&'static str> {
     })
 }
 
+/// The file a mesh name stands for, as given: a known scan in the scans' folder or a file of
+/// the user's; `None` for the 1M sample, which is generated.
+fn named_file(job: &BenchJob, name: &str) -> Option<PathBuf> {
+    match (known_scan(name), name) {
+        (Some(file), _) => Some(job.data.join(file)),
+        (None, "sample1m") => None,
+        (None, other) => Some(PathBuf::from(other)),
+    }
+}
+
 /// The input file of a mesh name (the 1M sample is generated into `work` once).
 fn mesh_path(job: &BenchJob, name: &str) -> Result<PathBuf, Error> {
-    let file = match (known_scan(name), name) {
-        (Some(file), _) => file,
-        (None, "sample1m") => {
-            let p = job.work.join("sample-1m.obj");
-            if !p.exists() {
-                let m = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 1_000_000, seed: 1 });
-                let text = crate::mesh::sample::to_obj(&m, "dispdec sample surface (dispdec sample --faces 1000000 --seed 1)");
-                crate::mesh::write_atomic(&p, text.as_bytes())?;
-            }
-            return Ok(p);
+    let Some(p) = named_file(job, name) else {
+        let p = job.work.join("sample-1m.obj");
+        if !p.exists() {
+            let m = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 1_000_000, seed: 1 });
+            let text = crate::mesh::sample::to_obj(&m, "dispdec sample surface (dispdec sample --faces 1000000 --seed 1)");
+            crate::mesh::write_atomic(&p, text.as_bytes())?;
         }
-        // Any other name is a mesh file of the user's.
-        (None, other) if Path::new(other).is_file() => return Ok(PathBuf::from(other)),
-        (None, other) => {
-            return Err(Error::Usage(format!(
-                "bench: {other:?} is neither a known mesh (bunny, horse, igea, turbineblade, sample1m) nor a file"
-            )))
-        }
+        return Ok(p);
     };
-    let p = job.data.join(file);
-    if !p.exists() {
+    if known_scan(name).is_none() {
+        // Any other name is a mesh file of the user's.
+        if !p.is_file() {
+            return Err(Error::Usage(format!(
+                "bench: {name:?} is neither a known mesh (bunny, horse, igea, turbineblade, sample1m) nor a file"
+            )));
+        }
+    } else if !p.exists() {
         return Err(Error::Input { path: p.display().to_string(), msg: "not found (give the scans' folder with --data)".into() });
     }
     Ok(p)
@@ -330,7 +336,7 @@ impl QuadricInput {
 /// Runs the benchmark; `progress` gets one line per finished run.
 pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchReport, Error> {
     if let Some(json) = &job.json {
-        let scans: Vec<PathBuf> = job.meshes.iter().map(|m| known_scan(m).map_or_else(|| PathBuf::from(m), |f| job.data.join(f))).collect();
+        let scans: Vec<PathBuf> = job.meshes.iter().filter_map(|m| named_file(job, m)).collect();
         crate::app::outputs::check_outputs(&scans.iter().map(PathBuf::as_path).collect::<Vec<_>>(), &[("the report", json)])?;
     }
     std::fs::create_dir_all(&job.work).map_err(|e| Error::Output { path: job.work.display().to_string(), msg: e.to_string() })?;
