@@ -522,16 +522,23 @@ fn search_primary(
     order.clear();
     // A recording search passes over the faces beyond the larger of the two reaches.
     let lim = record.map_or(reach, |r| r.max(reach));
-    for t in 0..m {
-        if beyond_sphere(x, tris.sphere[t], lim) {
-            continue;
+    // The sphere test first over a block of faces without a branch (a mask, so that the
+    // mostly unpredictable outcome costs no mispredicted jump), then the faces it kept.
+    for (block, spheres) in tris.sphere.chunks(64).enumerate() {
+        let mut kept = 0u64;
+        for (k, &s) in spheres.iter().enumerate() {
+            kept |= u64::from(!beyond_sphere(x, s, lim)) << k;
         }
-        let b = bound(t);
-        if record.is_some_and(|r| b <= r) {
-            scratch.note_read(tris.ids[t]);
-        }
-        if b <= reach && !hinted(t, hint.len()) {
-            order.push(Reverse((total_order_key(b), t as u32)));
+        while kept != 0 {
+            let t = 64 * block + kept.trailing_zeros() as usize;
+            kept &= kept - 1;
+            let b = bound(t);
+            if record.is_some_and(|r| b <= r) {
+                scratch.note_read(tris.ids[t]);
+            }
+            if b <= reach && !hinted(t, hint.len()) {
+                order.push(Reverse((total_order_key(b), t as u32)));
+            }
         }
     }
     // Few: the smallest taken by a scan each time; many: off a heap. The same order.
