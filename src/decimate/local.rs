@@ -646,10 +646,12 @@ impl MapContext for CandidateContext<'_> {
         let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
         let (blo, bhi) = (x - DVec3::splat(reach), x + DVec3::splat(reach));
         if !(blo.cmpge(outer.lo).all() && bhi.cmple(outer.hi).all()) {
-            let mut faces = Vec::new();
+            // The scratch's buffers, not fresh ones: in a scan with thin parts (the sample's
+            // fin) this runs for most midpoints, over hundreds of faces each.
+            let (mut faces, mut t) = scratch.take_point_buffers();
             st.face_grid.query(blo, bhi, &mut faces);
-            let mut t = Tris::default();
-            for f in faces {
+            t.clear();
+            for &f in &faces {
                 if self.tris.index_of(f).is_some()
                     || outer.tris.index_of(f).is_some()
                     || self.c.region.binary_search(&f).is_ok()
@@ -664,6 +666,7 @@ impl MapContext for CandidateContext<'_> {
             }
             t.finish();
             best = search(best, &t, scratch);
+            scratch.keep_point_buffers(faces, t);
         }
         best
     }

@@ -341,6 +341,9 @@ pub struct Scratch {
     /// Bit f: face f is in `reads` (a bisection's midpoints read the same faces millions of
     /// times over a run; a set, not a list of every read).
     read_bits: Vec<u64>,
+    /// A caller's buffers for one point's own faces ([`Scratch::take_point_buffers`]).
+    point_faces: Vec<u32>,
+    point_tris: Tris,
 }
 
 /// Whether the sphere (c, r) lies plainly beyond `reach` of `x`: |x − c| > (reach + r)·(1 +
@@ -353,6 +356,15 @@ fn beyond_sphere(x: DVec3, (c, r): (DVec3, f64), reach: f64) -> bool {
 }
 
 impl Scratch {
+    /// Two buffers a caller fills for one point's search beyond its own set (face ids, their
+    /// triangles) and hands back with [`Scratch::keep_point_buffers`], so that a run of such
+    /// searches allocates nothing.
+    pub fn take_point_buffers(&mut self) -> (Vec<u32>, Tris) {
+        (std::mem::take(&mut self.point_faces), std::mem::take(&mut self.point_tris))
+    }
+    pub fn keep_point_buffers(&mut self, faces: Vec<u32>, tris: Tris) {
+        (self.point_faces, self.point_tris) = (faces, tris);
+    }
     /// Records in the read record ([`Scratch::take_reads`]) the faces of `tris` whose sphere
     /// bound from `x` is within `reach`, and returns how many there were (0: a search of `tris`
     /// within that reach finds nothing). [`find_primary_recording`] records the same faces in
