@@ -550,7 +550,7 @@ fn run(cli: Cli) -> Result<i32> {
                 r.seconds
             ));
             say.line(&format!(
-                "texels of the charts and gutters: {} from the dense triangle whose image covers them, {} in gaps of the projection (filled from the nearest covered texel of their face; {} with none near, from the nearest crossing), {} without d (holes of the scan)",
+                "texels of the charts and gutters: {} from the dense triangle whose image covers them, {} in gaps of the projection (filled from the nearest covered texel of their face where that keeps them on the scan; {} from the nearest crossing instead), {} without d (holes of the scan)",
                 r.sources.image, r.sources.gap, r.sources.gap_from_crossing, r.sources.none
             ));
             if let Some(a) = r.agreement {

@@ -146,8 +146,8 @@ pub struct BakeSources {
     /// the same face ([`fill_gaps`]), else the nearest crossing of the line where the scan faces
     /// the way N does.
     pub gap: usize,
-    /// Of those, the ones with no covered texel of their face within GAP_FILL_RADIUS (filled
-    /// from the crossing).
+    /// Of those, the ones filled from the crossing: no covered texel of their face within
+    /// GAP_FILL_RADIUS, or its d would put their point off the scan.
     pub gap_from_crossing: usize,
     /// No crossing within dmax (a hole of the scan): no d.
     pub none: usize,
@@ -251,7 +251,8 @@ pub fn bake(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMo
 /// How far (texels) a texel in a gap of the projection looks for a texel of its own face's side
 /// of the cell that a dense triangle's image covers. Why: the gaps worth filling so are a few
 /// texels wide (at a base vertex standing on a spike of the scan, whose triangles all map onto
-/// the other faces around it: 4–10 texels on the bunny at 2048).
+/// the other faces around it: wider than OWNER_SEARCH on the bunny at 2048); a value from
+/// farther away would not continue the scan.
 const GAP_FILL_RADIUS: i64 = 24;
 
 /// A gap texel takes its covered neighbour's d only where the point it then stands for lies
