@@ -290,17 +290,14 @@ fn mesh_path(job: &BenchJob, name: &str) -> Result<PathBuf, Error> {
         }
         return Ok(p);
     };
-    if known_scan(name).is_none() {
+    match known_scan(name) {
         // Any other name is a mesh file of the user's.
-        if !p.is_file() {
-            return Err(Error::Usage(format!(
-                "bench: {name:?} is neither a known mesh (bunny, horse, igea, turbineblade, sample1m) nor a file"
-            )));
-        }
-    } else if !p.exists() {
-        return Err(Error::Input { path: p.display().to_string(), msg: "not found (give the scans' folder with --data)".into() });
+        None if !p.is_file() => Err(Error::Usage(format!(
+            "bench: {name:?} is neither a known mesh (bunny, horse, igea, turbineblade, sample1m) nor a file"
+        ))),
+        Some(_) if !p.exists() => Err(Error::Input { path: p.display().to_string(), msg: "not found (give the scans' folder with --data)".into() }),
+        _ => Ok(p),
     }
-    Ok(p)
 }
 
 /// A scan in meshoptimizer's layout (f32 positions, flat indices), loaded once per mesh.

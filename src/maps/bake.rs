@@ -161,31 +161,10 @@ pub fn bake(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMo
     let n = atlas.size;
     // The covering dense triangles nearest a texel on face f's chart, within OWNER_SEARCH texels.
     let owners_at = |f: u32, px: i64, py: i64| -> Option<[u32; 2]> {
-        let mut best: Option<(i64, [u32; 2])> = None;
-        for r in 0..=OWNER_SEARCH {
-            for dy in -r..=r {
-                for dx in -r..=r {
-                    if dx.abs().max(dy.abs()) != r {
-                        continue;
-                    }
-                    let (x, y) = (px + dx, py + dy);
-                    if x < 0 || y < 0 || x >= n as i64 || y >= n as i64 {
-                        continue;
-                    }
-                    let o = owners.owner[(y * n as i64 + x) as usize];
-                    if o[0] != u32::MAX && atlas.texel(x as u32, y as u32).map(|t| t.0) == Some(f) {
-                        let k = dx * dx + dy * dy;
-                        if best.is_none_or(|b| (k, o) < b) {
-                            best = Some((k, o));
-                        }
-                    }
-                }
-            }
-            if let Some(b) = best {
-                return Some(b.1);
-            }
-        }
-        None
+        nearest_texel(n as i64, px, py, 0..=OWNER_SEARCH, RingStop::FirstRing, |x, y| {
+            let o = owners.owner[(y * n as i64 + x) as usize];
+            (o[0] != u32::MAX && atlas.texel(x as u32, y as u32).map(|t| t.0) == Some(f)).then_some(o)
+        })
     };
     let bvh = Bvh::build(&dense.pos, &dense.faces);
     let base_bvh = Bvh::build(&base.positions, &base.faces);
@@ -232,8 +211,8 @@ pub fn bake(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMo
             }
         })
         .collect();
-    let (texels, unfilled) = fill_gaps(&atlas, base, mode, dense, &bvh, texels);
-    let mut sources = BakeSources { gap_from_crossing: unfilled, ..BakeSources::default() };
+    let (texels, filled) = fill_gaps(&atlas, base, mode, dense, &bvh, texels);
+    let mut sources = BakeSources::default();
     for t in &texels {
         match t.2 {
             SOURCE_IMAGE => sources.image += 1,
@@ -242,6 +221,7 @@ pub fn bake(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMo
             _ => {}
         }
     }
+    sources.gap_from_crossing = sources.gap - filled;
     let d: Vec<f32> = texels.iter().map(|t| t.0).collect();
     let dir = texels.iter().map(|t| t.1).collect();
     let jump = jump_of(&d);
@@ -268,55 +248,73 @@ const GAP_FILL_TOLERANCE_EDGES: f64 = 0.25;
 /// continues the scan's own values across the gap instead of jumping to a crossing of the line
 /// on another sheet (on the bunny's 157-face base a chart corner held d = −0.022 where the scan
 /// has 0, and a bilinear lookup there rebuilt a point in the air). Other gaps keep the nearest
-/// crossing; returns how many did.
+/// crossing; returns how many were filled so.
 fn fill_gaps(atlas: &Atlas, base: &Base, mode: NormalMode, dense: &DenseData, bvh: &Bvh, texels: Vec<(f32, [f32; 3], u8)>) -> (Vec<(f32, [f32; 3], u8)>, usize) {
     let n = atlas.size as i64;
     let face_of = |x: i64, y: i64| atlas.texel_any(x as u32, y as u32).map(|t| t.0);
     let edges: f64 = dense.faces.iter().map(|f| (0..3).map(|k| dense.pos[f[k] as usize].distance(dense.pos[f[(k + 1) % 3] as usize])).sum::<f64>()).sum();
     let tolerance = GAP_FILL_TOLERANCE_EDGES * edges / (3 * dense.faces.len()).max(1) as f64;
-    let gaps = texels.iter().filter(|t| t.2 == SOURCE_GAP).count();
     let filled: Vec<(usize, f32)> = (0..texels.len())
         .into_par_iter()
         .filter(|&i| texels[i].2 == SOURCE_GAP)
         .map_init(Vec::new, |near, i| {
             let (px, py) = (i as i64 % n, i as i64 / n);
             let f = face_of(px, py)?;
-            let mut best: Option<(i64, usize)> = None;
-            for r in 1..=GAP_FILL_RADIUS {
-                // A texel of ring r is at least r away: past a find nearer than that, stop.
-                if best.is_some_and(|(k, _)| k < r * r) {
-                    break;
-                }
-                for dy in -r..=r {
-                    for dx in -r..=r {
-                        let (x, y) = (px + dx, py + dy);
-                        if dx.abs().max(dy.abs()) != r || x < 0 || y < 0 || x >= n || y >= n {
-                            continue;
-                        }
-                        let j = (y * n + x) as usize;
-                        if texels[j].2 != SOURCE_IMAGE || face_of(x, y) != Some(f) {
-                            continue;
-                        }
-                        let k = dx * dx + dy * dy;
-                        if best.is_none_or(|b| (k, j) < b) {
-                            best = Some((k, j));
-                        }
-                    }
-                }
-            }
-            let d = texels[best?.1].0;
+            let j = nearest_texel(n, px, py, 1..=GAP_FILL_RADIUS, RingStop::Nearest, |x, y| {
+                let j = (y * n + x) as usize;
+                (texels[j].2 == SOURCE_IMAGE && face_of(x, y) == Some(f)).then_some(j)
+            })?;
+            let d = texels[j].0;
             let (_, _, x, dir) = texel_point_bary(atlas, base, mode, px as u32, py as u32)?;
             bvh.near(&dense.pos, &dense.faces, x + d as f64 * dir, tolerance, near);
             (!near.is_empty()).then_some((i, d))
         })
         .flatten()
         .collect();
-    let unfilled = gaps - filled.len();
+    let count = filled.len();
     let mut texels = texels;
     for (i, d) in filled {
         texels[i].0 = d;
     }
-    (texels, unfilled)
+    (texels, count)
+}
+
+/// Where a ring search stops: at the end of the first ring that holds an accepted texel, or
+/// once no farther ring can hold a nearer one (the exact nearest).
+#[derive(Clone, Copy)]
+enum RingStop {
+    FirstRing,
+    Nearest,
+}
+
+/// The texel that `keep` accepts nearest texel (px, py) of the n × n atlas, searched ring by
+/// ring of Chebyshev radius in `rings`: of the texels found, the smallest (squared distance,
+/// `keep`'s value), which breaks ties deterministically.
+fn nearest_texel<T: Ord + Copy>(n: i64, px: i64, py: i64, rings: std::ops::RangeInclusive<i64>, stop: RingStop, keep: impl Fn(i64, i64) -> Option<T>) -> Option<T> {
+    let mut best: Option<(i64, T)> = None;
+    for r in rings {
+        match (stop, best) {
+            (RingStop::FirstRing, Some((_, v))) => return Some(v),
+            // A texel of ring r is at least r away.
+            (RingStop::Nearest, Some((k, _))) if k < r * r => break,
+            _ => {}
+        }
+        for dy in -r..=r {
+            for dx in -r..=r {
+                let (x, y) = (px + dx, py + dy);
+                if dx.abs().max(dy.abs()) != r || x < 0 || y < 0 || x >= n || y >= n {
+                    continue;
+                }
+                if let Some(v) = keep(x, y) {
+                    let k = dx * dx + dy * dy;
+                    if best.is_none_or(|b| (k, v) < b) {
+                        best = Some((k, v));
+                    }
+                }
+            }
+        }
+    }
+    best.map(|(_, v)| v)
 }
 
 /// The point X a texel stands for (gutter texels: the nearest point of the chart) and N(X):
