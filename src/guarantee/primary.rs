@@ -350,9 +350,16 @@ pub struct Scratch {
 /// 1e-9), a squared distance with no square root, so that the sphere bound exceeds reach
 /// whatever its rounding. Most triangles of a search are passed over by this alone.
 #[inline]
-pub fn beyond_sphere(x: DVec3, (c, r): (DVec3, f64), reach: f64) -> bool {
+fn beyond_sphere(x: DVec3, (c, r): (DVec3, f64), reach: f64) -> bool {
     let lim = (reach + r) * (1.0 + 1e-9);
     (x - c).length_squared() > lim * lim
+}
+
+/// Whether a recording search with record `reach` records the face of sphere `sphere` from `x`
+/// (its sphere bound within reach, the square-root-free test first).
+#[inline]
+fn recorded_within(x: DVec3, sphere: (DVec3, f64), reach: f64) -> bool {
+    !beyond_sphere(x, sphere, reach) && sphere_lower_bound(x, sphere.0, sphere.1) <= reach
 }
 
 impl Scratch {
@@ -373,7 +380,7 @@ impl Scratch {
     pub fn record_within(&mut self, x: DVec3, tris: &Tris, reach: f64) -> usize {
         let mut within = 0;
         for (&sphere, &f) in tris.sphere.iter().zip(&tris.ids) {
-            if beyond_sphere(x, sphere, reach) || sphere_lower_bound(x, sphere.0, sphere.1) > reach {
+            if !recorded_within(x, sphere, reach) {
                 continue;
             }
             within += 1;
@@ -384,7 +391,7 @@ impl Scratch {
 
     /// Adds face `f` to the read record (once).
     #[inline]
-    pub fn note_read(&mut self, f: u32) {
+    fn note_read(&mut self, f: u32) {
         let (word, bit) = ((f / 64) as usize, 1u64 << (f % 64));
         if word >= self.read_bits.len() {
             self.read_bits.resize(word + 1, 0);
@@ -495,8 +502,7 @@ pub fn find_primary_near_first(
         if dist > reach {
             continue;
         }
-        let s = triangle_sphere(&fi.pos);
-        if !beyond_sphere(x, s, reach) && sphere_lower_bound(x, s.0, s.1) <= reach {
+        if recorded_within(x, triangle_sphere(&fi.pos), reach) {
             scratch.note_read(f);
         }
         if dist <= first {

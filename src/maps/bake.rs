@@ -287,7 +287,7 @@ enum RingStop {
     Nearest,
 }
 
-/// The texel that `keep` accepts nearest texel (px, py) of the n × n atlas, searched ring by
+/// The texel nearest (px, py) of the n × n atlas that `keep` accepts, searched ring by
 /// ring of Chebyshev radius in `rings`: of the texels found, the smallest (squared distance,
 /// `keep`'s value), which breaks ties deterministically.
 fn nearest_texel<T: Ord + Copy>(n: i64, px: i64, py: i64, rings: std::ops::RangeInclusive<i64>, stop: RingStop, keep: impl Fn(i64, i64) -> Option<T>) -> Option<T> {
