@@ -197,10 +197,17 @@ impl FaceGrid {
 
     /// Faces whose cells overlap the box [lo, hi], ascending, without repeats.
     pub fn query(&self, lo: DVec3, hi: DVec3, out: &mut Vec<u32>) {
-        out.clear();
-        self.frame.for_cells(self.frame.coords(lo), self.frame.coords(hi), |c| out.extend_from_slice(&self.cells[c]));
+        self.query_where(lo, hi, |_| true, out);
         out.sort_unstable();
         out.dedup();
+    }
+
+    /// The faces of [`FaceGrid::query`] that `keep` accepts, cell by cell: unsorted, a face as
+    /// many times as it has cells in the box (a cheap cull spares the sort what a coarse cell
+    /// holds beyond a small box).
+    pub fn query_where(&self, lo: DVec3, hi: DVec3, keep: impl Fn(u32) -> bool, out: &mut Vec<u32>) {
+        out.clear();
+        self.frame.for_cells(self.frame.coords(lo), self.frame.coords(hi), |c| out.extend(self.cells[c].iter().copied().filter(|&f| keep(f))));
     }
 }
 

@@ -491,6 +491,22 @@ pub fn triangle_distance(x: DVec3, p: &[DVec3; 3]) -> f64 {
     closest_to_origin_on_triangle(p[0] - x, p[1] - x, p[2] - x).length()
 }
 
+/// Whether triangle `p` lies farther than `reach` from `x` by its bounding box alone: true only
+/// where [`triangle_distance`] exceeds `reach` too, so that a search passing over such triangles
+/// keeps every one the exact distance keeps. No square root: the cull before that distance.
+/// The box gap is a lower bound on the distance; the margin (1e-9 of the reach, 1e-12 of the
+/// coordinates' size) covers the rounding of the exact distance (its closest point lies in the
+/// box up to a few ulps of the coordinates).
+#[inline]
+pub fn beyond_box(x: DVec3, p: &[DVec3; 3], reach: f64) -> bool {
+    let lo = p[0].min(p[1]).min(p[2]);
+    let hi = p[0].max(p[1]).max(p[2]);
+    let gap = (lo - x).max(x - hi).max(DVec3::ZERO);
+    let scale = x.abs().max(lo.abs()).max(hi.abs()).max_element();
+    let lim = reach * (1.0 + 1e-9) + 1e-12 * scale;
+    gap.length_squared() > lim * lim
+}
+
 /// Bounding sphere of a triangle (centroid and the largest distance to a corner).
 #[inline]
 pub fn triangle_sphere(p: &[DVec3; 3]) -> (DVec3, f64) {
@@ -528,6 +544,39 @@ mod tests {
     use super::*;
 
     use crate::geometry::testing::Rng;
+
+    #[test]
+    fn a_triangle_beyond_by_its_box_is_beyond_by_its_distance() {
+        // Random triangles (some slivers, some far from the origin, where rounding is coarser)
+        // and points; the reach set at the exact distance, a hair either side, and at random.
+        // Wherever the box says beyond, the exact distance must exceed the reach; and the box
+        // must pass over most triangles beyond twice their distance's reach.
+        let mut rng = Rng(0xD1B54A32D192ED03);
+        let (mut beyond, mut far, mut culled) = (0, 0, 0);
+        for i in 0..40_000 {
+            let offset = [0.0, 1e3, 1e6][i % 3] * DVec3::new(1.0, -0.5, 0.25);
+            let a = offset + rng.vec();
+            let (b, c) = if i % 5 == 0 { (a + rng.vec(), a + 1e-9 * rng.vec()) } else { (a + 0.3 * rng.vec(), a + 0.3 * rng.vec()) };
+            let p = [a, b, c];
+            let x = offset + 2.0 * rng.vec();
+            let dist = triangle_distance(x, &p);
+            for reach in [dist, dist * (1.0 - 1e-15), dist * (1.0 + 1e-15), 0.0, 3.0 * rng.next()] {
+                if beyond_box(x, &p, reach) {
+                    beyond += 1;
+                    assert!(dist > reach, "triangle {i}: box beyond {reach}, distance {dist}");
+                }
+            }
+            let reach = 0.5 * dist;
+            if reach > 0.0 {
+                far += 1;
+                culled += usize::from(beyond_box(x, &p, reach));
+            }
+        }
+        // Measured: 65,152 beyond, 39,822 of 40,000 culled at half the distance (bounds: 10 %
+        // below the first, 97 % for the second).
+        println!("{beyond} beyond, {culled} of {far} culled at half the distance");
+        assert!(beyond > 58_600 && culled * 100 > far * 97, "{beyond} beyond, {culled} of {far} culled at half the distance");
+    }
 
     //      P3
     //      | \        flat triangle in z = 0, all normals +z:

@@ -3,8 +3,8 @@
 //! re-check, the validator and the GPU's f64 settling.
 
 use crate::geometry::{
-    self, condition4, interpolate_direction, solve_constant, sphere_lower_bound, triangle_distance,
-    triangle_sphere,
+    self, beyond_box, condition4, interpolate_direction, solve_constant, sphere_lower_bound,
+    triangle_distance, triangle_sphere,
     ShellHit,
 };
 use super::ids::IdIndex;
@@ -344,6 +344,14 @@ pub struct Scratch {
     /// A caller's buffers for one point's own faces ([`Scratch::take_point_buffers`]).
     point_faces: Vec<u32>,
     point_tris: Tris,
+    point_near: Vec<(u32, FaceInfo)>,
+}
+
+/// A caller's buffers for one point's search beyond its own set ([`Scratch::take_point_buffers`]).
+pub struct PointBuffers {
+    pub faces: Vec<u32>,
+    pub tris: Tris,
+    pub near: Vec<(u32, FaceInfo)>,
 }
 
 /// Whether the sphere (c, r) lies plainly beyond `reach` of `x`: |x − c| > (reach + r)·(1 +
@@ -363,14 +371,18 @@ fn recorded_within(x: DVec3, sphere: (DVec3, f64), reach: f64) -> bool {
 }
 
 impl Scratch {
-    /// Two buffers a caller fills for one point's search beyond its own set (face ids, their
-    /// triangles) and hands back with [`Scratch::keep_point_buffers`], so that a run of such
-    /// searches allocates nothing.
-    pub fn take_point_buffers(&mut self) -> (Vec<u32>, Tris) {
-        (std::mem::take(&mut self.point_faces), std::mem::take(&mut self.point_tris))
+    /// Three buffers a caller fills for one point's search beyond its own set (face ids, their
+    /// triangles, the near ones) and hands back with [`Scratch::keep_point_buffers`], so that a
+    /// run of such searches allocates nothing.
+    pub fn take_point_buffers(&mut self) -> PointBuffers {
+        PointBuffers {
+            faces: std::mem::take(&mut self.point_faces),
+            tris: std::mem::take(&mut self.point_tris),
+            near: std::mem::take(&mut self.point_near),
+        }
     }
-    pub fn keep_point_buffers(&mut self, faces: Vec<u32>, tris: Tris) {
-        (self.point_faces, self.point_tris) = (faces, tris);
+    pub fn keep_point_buffers(&mut self, b: PointBuffers) {
+        (self.point_faces, self.point_tris, self.point_near) = (b.faces, b.tris, b.near);
     }
     /// Records in the read record ([`Scratch::take_reads`]) the faces of `tris` whose sphere
     /// bound from `x` is within `reach`, and returns how many there were (0: a search of `tris`
@@ -391,6 +403,11 @@ impl Scratch {
 
     /// Adds face `f` to the read record (once).
     #[inline]
+    /// Whether face f is in the record.
+    fn has_read(&self, f: u32) -> bool {
+        self.read_bits.get((f / 64) as usize).is_some_and(|w| w & (1u64 << (f % 64)) != 0)
+    }
+
     fn note_read(&mut self, f: u32) {
         let (word, bit) = ((f / 64) as usize, 1u64 << (f % 64));
         if word >= self.read_bits.len() {
@@ -470,19 +487,29 @@ pub fn find_primary_recording(
 
 /// [`find_primary_recording`] (reach and record both `reach`, the search's own dmax `reach` ≤
 /// `dmax`) over the faces of `faces` that lie within `reach` of x — `info(f)` gives a face's
-/// triangle, `None` for one outside the search — without preparing each of them: the same record,
-/// and the same hit (its face id and solution, bit for bit). Every face within reach is recorded
-/// (its sphere bound as that search judges it); the search goes first over the faces within
-/// `first` only, and their hit is final when its |d| plus the tie stays within `first`: a farther
-/// face holds no solution with a smaller |d| (|x − X| ≤ |d|·|N| ≤ |d|), and a root within range
-/// is found with the same bits whatever a search's reach ([`crate::geometry::cubic_roots_in_unit_within`]),
-/// so the hits met on the way do not change it. Otherwise every face within reach is searched.
-/// `t` is the caller's buffer; `hint` face ids visited first, as `find_primary_recording`'s.
+/// triangle, `None` for one outside the search, `corners(f)` the same triangle's corners for
+/// every listed face — without preparing each of them: the same record, and the same hit (its
+/// face id and solution, bit for bit). `faces` may come in any order and with repeats (a grid's
+/// cells); it is sorted in place where the whole search runs.
+///
+/// Every face within reach is recorded (its sphere bound as that search judges it) unless the
+/// record holds it already: such a face costs a box test, not its exact distance. The search goes
+/// first over the faces within `first` only, in ascending id as the whole search lists them, and
+/// their hit is final when its |d| plus the tie stays within `first`: a farther face holds no
+/// solution with a smaller |d| (|x − X| ≤ |d|·|N| ≤ |d|), and a root within range is found with
+/// the same bits whatever a search's reach ([`crate::geometry::cubic_roots_in_unit_within`]), so
+/// the hits met on the way do not change it. Otherwise — unless no face within reach lies beyond
+/// `first` (then the near faces are the whole set) — every face within reach is searched. A
+/// recorded face passed over by its box may count as beyond `first`: that only sends an
+/// unsettled point to the whole search, whose answer over the same faces is the same.
+/// `t` and `near` are the caller's buffers; `hint` face ids visited first, as
+/// `find_primary_recording`'s.
 #[allow(clippy::too_many_arguments)]
 pub fn find_primary_near_first(
     x: DVec3,
     normals: &[DVec3],
-    faces: &[u32],
+    faces: &mut Vec<u32>,
+    corners: impl Fn(u32) -> [DVec3; 3],
     info: impl Fn(u32) -> Option<FaceInfo>,
     mode: NormalMode,
     dmax: f64,
@@ -490,38 +517,52 @@ pub fn find_primary_near_first(
     first: f64,
     hint: [u32; 2],
     t: &mut Tris,
+    near: &mut Vec<(u32, FaceInfo)>,
     scratch: &mut Scratch,
 ) -> Option<(u32, ShellHit)> {
     let tie = SAME_SOLUTION_REL * dmax;
     let hint_in = |t: &Tris| hint.map(|f| t.index_of(f).unwrap_or(usize::MAX));
-    t.clear();
+    near.clear();
     let mut beyond_first = false;
-    for &f in faces {
+    for &f in faces.iter() {
+        let recorded = scratch.has_read(f);
+        if recorded && beyond_box(x, &corners(f), first.min(reach)) {
+            beyond_first = true; // perhaps: see above
+            continue;
+        }
         let Some(fi) = info(f) else { continue };
         let dist = triangle_distance(x, &fi.pos);
         if dist > reach {
             continue;
         }
-        if recorded_within(x, triangle_sphere(&fi.pos), reach) {
+        if !recorded && recorded_within(x, triangle_sphere(&fi.pos), reach) {
             scratch.note_read(f);
         }
         if dist <= first {
-            t.push(f, fi.verts, fi.pos, fi.dir);
+            near.push((f, fi));
         } else {
             beyond_first = true;
         }
     }
+    near.sort_unstable_by_key(|&(f, _)| f);
+    near.dedup_by_key(|&mut (f, _)| f);
+    t.clear();
+    for &(f, fi) in near.iter() {
+        t.push(f, fi.verts, fi.pos, fi.dir);
+    }
     t.finish();
-    let near = search_primary(x, normals, t, mode, reach.min(dmax), true, false, &hint_in(t), None, scratch);
-    let near = match near {
+    let found = search_primary(x, normals, t, mode, reach.min(dmax), true, false, &hint_in(t), None, scratch);
+    let found = match found {
         Found::Hit(i, h) => Some((t.ids[i], h)),
         _ => None,
     };
-    if !beyond_first || near.is_some_and(|(_, h)| h.d.abs() + tie <= first) {
-        return near;
+    if !beyond_first || found.is_some_and(|(_, h)| h.d.abs() + tie <= first) {
+        return found;
     }
+    faces.sort_unstable();
+    faces.dedup();
     t.clear();
-    for &f in faces {
+    for &f in faces.iter() {
         let Some(fi) = info(f) else { continue };
         if triangle_distance(x, &fi.pos) <= reach {
             t.push(f, fi.verts, fi.pos, fi.dir);
@@ -826,33 +867,41 @@ mod tests {
 
     #[test]
     fn a_search_near_first_finds_and_records_what_the_whole_search_does() {
-        // 400 small scattered triangles, listed by ascending id as the grid lists them (every
-        // seventh one outside the search), and points among them: on a shell (a hit near) or
-        // anywhere (mostly none near: the whole search). The near-first search must return the
-        // whole search's hit bit for bit and record the same faces, whatever `first`; some
-        // answers must come from the near faces alone, and some near hits must not be final
-        // (a farther face holds a smaller |d|: settling on any near hit would be wrong there).
+        // 400 small scattered triangles, listed in a shuffled order with repeats as a grid's
+        // cells list them (every seventh one outside the search), and points among them: on a
+        // shell (a hit near) or anywhere (mostly none near: the whole search). The near-first
+        // search must return the whole search's hit bit for bit and record the same faces,
+        // whatever `first` and whatever the record already holds (records are compared over
+        // groups of eight points, so that later points meet faces recorded before them); some
+        // answers must come from the near faces alone, and some near hits must not be final (a
+        // farther face holds a smaller |d|: settling on any near hit would be wrong there).
         use super::{find_primary_near_first, find_primary_recording, FaceInfo, Found, NormalMode, SAME_SOLUTION_REL};
         let mut rng = crate::geometry::testing::Rng(0x853C49E6748FEA9B);
         // Every other one with directions far from its normal: a solution there can lie much
         // farther than the triangle (|d| well above the distance).
         let tris = scattered_tris(&mut rng, 400, 0.25, |k| [0.4, 1.5][k % 2], |k| 3 * k as u32);
         let faces: Vec<u32> = tris.ids.clone();
+        let mut listed: Vec<u32> = faces.iter().copied().chain(faces.iter().copied().step_by(5)).collect();
+        let mut shuffle = crate::geometry::testing::Rng(0x9E3779B97F4A7C15);
+        for i in (1..listed.len()).rev() {
+            listed.swap(i, (shuffle.next() * (i + 1) as f64) as usize);
+        }
         let info = |f: u32| {
             let t = tris.index_of(f)?;
             (f % 7 != 0).then_some(FaceInfo { verts: tris.verts[t], pos: tris.pos[t], dir: tris.dir[t] })
         };
+        let corners = |f: u32| tris.pos[tris.index_of(f).unwrap()];
         let (mode, dmax) = (NormalMode::Interpolated, 3.0);
         let tie = SAME_SOLUTION_REL * dmax;
         let (mut one, mut two) = (Scratch::default(), Scratch::default());
-        let mut buf = Tris::default();
+        let (mut buf, mut near_buf, mut list) = (Tris::default(), Vec::new(), Vec::new());
         let (mut hits, mut settled, mut not_final) = (0, 0, 0);
         for i in 0..8000 {
             let x = shell_or_anywhere(&mut rng, &tris, i, 0.6);
             let reach = [dmax, 0.8][i % 2];
             let first = [0.05, 0.2, 0.5][(i / 2) % 3];
             let hint = [faces[(i * 7) % 400], faces[(i * 13) % 400]];
-            // The whole search over a set of its own: the faces within reach, in list order.
+            // The whole search over a set of its own: the faces within reach, ascending.
             let mut whole = Tris::default();
             for &f in &faces {
                 if let Some(fi) = info(f) {
@@ -867,12 +916,15 @@ mod tests {
                 Found::Hit(t, h) => Some((whole.ids[t], h)),
                 _ => None,
             };
-            let got = find_primary_near_first(x, &[], &faces, info, mode, dmax, reach, first, hint, &mut buf, &mut one);
+            list.clone_from(&listed);
+            let got = find_primary_near_first(x, &[], &mut list, corners, info, mode, dmax, reach, first, hint, &mut buf, &mut near_buf, &mut one);
             assert_eq!(got.map(|(f, h)| (f, h.d.to_bits(), h.bary.map(f64::to_bits))), want.map(|(f, h)| (f, h.d.to_bits(), h.bary.map(f64::to_bits))), "point {i}");
-            let (mut a, mut b) = (one.take_reads(), two.take_reads());
-            a.sort_unstable();
-            b.sort_unstable();
-            assert_eq!(a, b, "point {i}");
+            if i % 8 == 7 {
+                let (mut a, mut b) = (one.take_reads(), two.take_reads());
+                a.sort_unstable();
+                b.sort_unstable();
+                assert_eq!(a, b, "points {} to {i}", i - 7);
+            }
             // What the near faces alone say.
             let near = (0..whole.len()).filter(|&t| crate::geometry::triangle_distance(x, &whole.pos[t]) <= first).collect::<Vec<_>>();
             let near_hit = near
