@@ -461,6 +461,14 @@ impl State {
                     self.count_reject(r);
                 }
                 Ok((he, placements)) => {
+                    // The ends and their neighbours (the ring) lie in the footprint, on its
+                    // region's faces: one of them marked defers the candidate before the rest
+                    // of its footprint is gathered.
+                    let marked = |v: &u32| marks[*v as usize] == round;
+                    if marked(&e.a) || marked(&e.b) || n1.iter().any(marked) || n2.iter().any(marked) {
+                        deferred.push(e);
+                        continue;
+                    }
                     let c = self.gather(he, placements, &mut s, &mut n1);
                     self.footprint_vertices(&c, &mut fp);
                     if fp.iter().any(|&v| marks[v as usize] == round) {
