@@ -401,13 +401,14 @@ impl Scratch {
         within
     }
 
-    /// Adds face `f` to the read record (once).
+    /// Whether face `f` is in the read record.
     #[inline]
-    /// Whether face f is in the record.
     fn has_read(&self, f: u32) -> bool {
         self.read_bits.get((f / 64) as usize).is_some_and(|w| w & (1u64 << (f % 64)) != 0)
     }
 
+    /// Adds face `f` to the read record (once).
+    #[inline]
     fn note_read(&mut self, f: u32) {
         let (word, bit) = ((f / 64) as usize, 1u64 << (f % 64));
         if word >= self.read_bits.len() {
@@ -527,7 +528,7 @@ pub fn find_primary_near_first(
     for &f in faces.iter() {
         let recorded = scratch.has_read(f);
         if recorded && beyond_box(x, &corners(f), first.min(reach)) {
-            beyond_first = true; // perhaps: see above
+            beyond_first = true; // perhaps (see above)
             continue;
         }
         let Some(fi) = info(f) else { continue };
