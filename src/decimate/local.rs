@@ -662,10 +662,11 @@ impl MapContext for CandidateContext<'_> {
             // recorded faces tested by box alone, the sample 0.87x the time again.
             let near_box = |f: u32| st.topo.face_alive(f) && !beyond_box(x, &corners(f), reach);
             st.face_grid.query_where(blo, bhi, near_box, &mut buf.faces);
-            // Live faces beyond the neighbourhood (the region's old faces are gone) and the outer set.
+            // Faces beyond the neighbourhood (the region's old faces are gone) and the outer set
+            // (the cull above kept live faces only).
             let info = |f: u32| {
                 let searched = self.tris.index_of(f).is_some() || outer.tris.index_of(f).is_some() || self.c.region.binary_search(&f).is_ok();
-                (!searched && st.topo.face_alive(f)).then(|| st.face_info_current(f))
+                (!searched).then(|| st.face_info_current(f))
             };
             let first = FAR_FIRST_REACH_REL * st.dmax;
             let found = find_primary_near_first(

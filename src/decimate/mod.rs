@@ -471,7 +471,7 @@ impl State {
                     }
                     let c = self.gather(he, placements, &mut s, &mut n1);
                     self.footprint_vertices(&c, &mut fp);
-                    if fp.iter().any(|&v| marks[v as usize] == round) {
+                    if fp.iter().any(marked) {
                         deferred.push(e);
                         continue;
                     }

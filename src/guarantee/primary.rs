@@ -523,6 +523,11 @@ pub fn find_primary_near_first(
 ) -> Option<(u32, ShellHit)> {
     let tie = SAME_SOLUTION_REL * dmax;
     let hint_in = |t: &Tris| hint.map(|f| t.index_of(f).unwrap_or(usize::MAX));
+    // A search of `t` (recording within `record`, if any): its hit by face id.
+    let search = |t: &Tris, record: Option<f64>, scratch: &mut Scratch| match search_primary(x, normals, t, mode, reach.min(dmax), true, false, &hint_in(t), record, scratch) {
+        Found::Hit(i, h) => Some((t.ids[i], h)),
+        _ => None,
+    };
     near.clear();
     let mut beyond_first = false;
     for &f in faces.iter() {
@@ -552,11 +557,7 @@ pub fn find_primary_near_first(
         t.push(f, fi.verts, fi.pos, fi.dir);
     }
     t.finish();
-    let found = search_primary(x, normals, t, mode, reach.min(dmax), true, false, &hint_in(t), None, scratch);
-    let found = match found {
-        Found::Hit(i, h) => Some((t.ids[i], h)),
-        _ => None,
-    };
+    let found = search(t, None, scratch);
     if !beyond_first || found.is_some_and(|(_, h)| h.d.abs() + tie <= first) {
         return found;
     }
@@ -570,10 +571,7 @@ pub fn find_primary_near_first(
         }
     }
     t.finish();
-    match search_primary(x, normals, t, mode, reach.min(dmax), true, false, &hint_in(t), Some(reach), scratch) {
-        Found::Hit(i, h) => Some((t.ids[i], h)),
-        _ => None,
-    }
+    search(t, Some(reach), scratch)
 }
 
 #[allow(clippy::too_many_arguments)]
