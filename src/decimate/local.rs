@@ -299,16 +299,21 @@ impl State {
         let (lo, hi) = (lo - DVec3::splat(reach), hi + DVec3::splat(reach));
         let mut ids = Vec::new();
         self.face_grid.query(lo, hi, &mut ids);
+        ids.retain(|&f| tris.index_of(f).is_none() && c.region.binary_search(&f).is_err() && self.topo.face_alive(f));
+        // Most of the grid's coarse cells lie beyond the box: only the faces whose spheres meet
+        // it are prepared ([`Outer::within`]).
+        let margin = outer_margin(self.dmax, lo, hi);
         let mut t = Tris::default();
-        for f in ids {
-            if tris.index_of(f).is_some() || c.region.binary_search(&f).is_ok() || !self.topo.face_alive(f) {
-                continue;
-            }
+        for &f in &ids {
             let info = self.face_info_current(f);
-            t.push(f, info.verts, info.pos, info.dir);
+            if sphere_meets_box(crate::geometry::triangle_sphere(&info.pos), lo, hi, margin) {
+                t.push(f, info.verts, info.pos, info.dir);
+            }
         }
         t.finish();
-        Outer { tris: t, lo, hi }
+        let mut index = IdIndex::default();
+        index.build(&ids);
+        Outer { within: t, ids, index, all: std::sync::OnceLock::new(), lo, hi }
     }
 
     /// (`--strict`) The paper's uniqueness, verified on the ring too: a vertex associated with
@@ -520,12 +525,65 @@ const PRIMARY_CHUNKS_PER_THREAD: usize = 4;
 /// Why: the valence cap is 12, so a fan has at most 12 faces beside the two ends'.
 const HINT_FAN: usize = 14;
 
-/// The faces outside a candidate's neighbourhood that its bisection midpoints may reach, and the
-/// box they cover.
+/// The faces outside a candidate's neighbourhood that its bisection midpoints search: every
+/// live face the face grid holds around the box `lo..hi` (`ids`, ascending; `index` finds them),
+/// prepared as triangles only where a point needs them. A point whose reach cube lies inside the
+/// box searches `within`, the faces whose bounding spheres meet the box (with a margin): the
+/// others lie farther from it than its reach by more than their radius (a segment from the point
+/// to a sphere's centre leaves its reach ball inside the box, then crosses the gap to the
+/// centre), so the whole set's search passes over them by its sphere test and records none of
+/// them, and in the same order (`within` keeps the ids' order) it does the same work — the
+/// same hit, the same record. Any other point searches `all` (built on the first such point).
 struct Outer {
-    tris: Tris,
+    within: Tris,
+    ids: Vec<u32>,
+    index: IdIndex,
+    all: std::sync::OnceLock<Tris>,
     lo: DVec3,
     hi: DVec3,
+}
+
+impl Outer {
+    /// Whether the set holds face `f`.
+    fn holds(&self, f: u32) -> bool {
+        self.index.get(&self.ids, f).is_some()
+    }
+    /// The triangles a point with reach `reach` searches (see the type).
+    fn tris_for(&self, st: &State, x: DVec3, reach: f64) -> &Tris {
+        if self.covers(x, reach) {
+            return &self.within;
+        }
+        self.all.get_or_init(|| {
+            let mut t = Tris::default();
+            for &f in &self.ids {
+                let info = st.face_info_current(f);
+                t.push(f, info.verts, info.pos, info.dir);
+            }
+            t.finish();
+            t
+        })
+    }
+    /// Whether the cube of half-side `reach` around `x` lies inside the box.
+    fn covers(&self, x: DVec3, reach: f64) -> bool {
+        (x - DVec3::splat(reach)).cmpge(self.lo).all() && (x + DVec3::splat(reach)).cmple(self.hi).all()
+    }
+}
+
+/// The relative margin of [`Outer::within`]'s sphere test, on the radius and on dmax plus the
+/// coordinates' size. Why: a search keeps a sphere within (reach + radius)·(1 + 1e-9) and rounds
+/// its distances; a millionth covers both a thousand times over.
+const OUTER_SPHERE_SLACK: f64 = 1e-6;
+
+/// The absolute part of [`sphere_meets_box`]'s margin: [`OUTER_SPHERE_SLACK`] of dmax plus the
+/// coordinates' size.
+fn outer_margin(dmax: f64, lo: DVec3, hi: DVec3) -> f64 {
+    OUTER_SPHERE_SLACK * (dmax + lo.abs().max(hi.abs()).max_element())
+}
+
+/// Whether a triangle's bounding sphere meets the box [lo, hi], with [`OUTER_SPHERE_SLACK`] on
+/// its radius and `margin` besides.
+fn sphere_meets_box((ctr, r): (DVec3, f64), lo: DVec3, hi: DVec3, margin: f64) -> bool {
+    ctr.clamp(lo, hi).distance(ctr) <= r * (1.0 + OUTER_SPHERE_SLACK) + margin
 }
 
 /// Map context during a candidate's evaluation: tested vertices use the new maps and the
@@ -646,11 +704,11 @@ impl MapContext for CandidateContext<'_> {
         let outer = self.outer.get_or_init(|| st.outer_faces(self.c, self.tris, self.faces, self.maps, self.extras));
         // Every face within that reach is recorded as read (the search's own pass).
         let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
-        let far = &outer.tris;
+        let far = outer.tris_for(st, x, reach);
         best = pick(best, far, find_primary_recording(x, normals, far, st.mode, reach.min(st.dmax), reach, &hint(far), scratch));
         let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
         let (blo, bhi) = (x - DVec3::splat(reach), x + DVec3::splat(reach));
-        if !(blo.cmpge(outer.lo).all() && bhi.cmple(outer.hi).all()) {
+        if !outer.covers(x, reach) {
             // Often a point with no hit yet, whose reach is dmax: thousands of faces lie within
             // it, so the faces near it go first ([`find_primary_near_first`]: the same answer
             // and record; the shipped sample 0.85x the time), in the scratch's buffers, not fresh
@@ -665,7 +723,7 @@ impl MapContext for CandidateContext<'_> {
             // Faces beyond the neighbourhood (the region's old faces are gone) and the outer set
             // (the cull above kept live faces only).
             let info = |f: u32| {
-                let searched = self.tris.index_of(f).is_some() || outer.tris.index_of(f).is_some() || self.c.region.binary_search(&f).is_ok();
+                let searched = self.tris.index_of(f).is_some() || outer.holds(f) || self.c.region.binary_search(&f).is_ok();
                 (!searched).then(|| st.face_info_current(f))
             };
             let first = FAR_FIRST_REACH_REL * st.dmax;
@@ -743,6 +801,62 @@ mod tests {
     use super::*;
     use crate::geometry::testing::Rng;
     use crate::geometry::triangle_distance;
+
+    /// A point whose reach cube lies inside the outer box finds and records over the triangles
+    /// whose spheres meet the box exactly what it does over all of them (the hit's face and
+    /// solution bit for bit, the same record). Triangles anywhere around a box, some far from
+    /// the origin; reaches from a thousandth to most of the box.
+    #[test]
+    fn a_point_inside_the_outer_box_searches_the_spheres_meeting_it_as_it_searches_all() {
+        let mut rng = Rng(0x07E5_EED2_0260);
+        let (mut left_out, mut hits, mut records) = (0usize, 0usize, 0usize);
+        for case in 0..60 {
+            let origin = if case % 3 == 0 { DVec3::new(1e5, -2e5, 3e5) } else { DVec3::ZERO };
+            let (lo, hi) = (origin - DVec3::splat(0.3), origin + DVec3::splat(0.3));
+            let dmax = 0.3;
+            let mut all = Tris::default();
+            let mut within = Tris::default();
+            for f in 0..200u32 {
+                let c = origin + rng.vec() * 0.8;
+                let size = 0.02 + 0.2 * rng.next();
+                let pos = [c + rng.vec() * size, c + rng.vec() * size, c + rng.vec() * size];
+                let n = crate::geometry::face_normal(pos[0], pos[1], pos[2]);
+                let dir = [0, 1, 2].map(|_| (n + 0.3 * rng.vec()).normalize());
+                all.push(f, [3 * f, 3 * f + 1, 3 * f + 2], pos, dir);
+                if sphere_meets_box(crate::geometry::triangle_sphere(&pos), lo, hi, outer_margin(dmax, lo, hi)) {
+                    within.push(f, [3 * f, 3 * f + 1, 3 * f + 2], pos, dir);
+                } else {
+                    left_out += 1;
+                }
+            }
+            all.finish();
+            within.finish();
+            let (mut sa, mut sw) = (Scratch::default(), Scratch::default());
+            for _ in 0..50 {
+                let reach = 0.001 + 0.25 * rng.next() * rng.next();
+                let x = origin + rng.vec().clamp(DVec3::splat(-1.0), DVec3::splat(1.0)) * (0.3 - reach);
+                let outer = Outer { within: Tris::default(), ids: Vec::new(), index: IdIndex::default(), all: std::sync::OnceLock::new(), lo, hi };
+                assert!(outer.covers(x, reach));
+                let fa = find_primary_recording(x, &[], &all, NormalMode::Interpolated, reach.min(dmax), reach, &[], &mut sa);
+                let fw = find_primary_recording(x, &[], &within, NormalMode::Interpolated, reach.min(dmax), reach, &[], &mut sw);
+                let hit = |f: Found, t: &Tris| match f {
+                    Found::Hit(i, h) => Some((t.ids[i], h.d.to_bits(), h.bary.map(f64::to_bits))),
+                    _ => None,
+                };
+                assert_eq!(hit(fa, &all), hit(fw, &within), "case {case}, x {x}, reach {reach}");
+                hits += usize::from(hit(fa, &all).is_some());
+                let (mut ra, mut rw) = (sa.take_reads(), sw.take_reads());
+                ra.sort_unstable();
+                rw.sort_unstable();
+                assert_eq!(ra, rw, "case {case}, x {x}, reach {reach}");
+                records += ra.len();
+            }
+        }
+        // Measured: 8,565 of 12,000 triangles left out, 186 of 3,000 points with a hit, 6,503
+        // faces recorded; bounds 10 % below.
+        println!("left out {left_out}, hits {hits}, records {records}");
+        assert!(left_out >= 7_700 && hits >= 167 && records >= 5_850, "left out {left_out}, hits {hits}, records {records}");
+    }
 
     fn spheres(tris: &[[DVec3; 3]]) -> Vec<(DVec3, f64)> {
         tris.iter().map(crate::geometry::triangle_sphere).collect()
