@@ -20,7 +20,8 @@ use crate::topology::{face_of, Topology, INVALID};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::cmp::Ordering;
-use std::collections::{BinaryHeap, HashMap, HashSet};
+use rustc_hash::{FxHashMap, FxHashSet};
+use std::collections::BinaryHeap;
 use std::time::Instant;
 
 /// The default cap on an edge's valence (the paper's 12).
@@ -161,9 +162,9 @@ pub struct State {
     pub unmapped_at_start: usize,
     // Queue.
     heap: BinaryHeap<QueueEntry>,
-    queued: HashSet<u64>,
+    queued: FxHashSet<u64>,
     /// Where the last try of a rejected edge failed, by edge key (see `Candidate::first_fail`).
-    fail_memo: HashMap<u64, Vec<FailAt>>,
+    fail_memo: FxHashMap<u64, Vec<FailAt>>,
     pub stats: Stats,
     /// CPU time of the candidate test per stage (report only; never read by a decision).
     pub clock: crate::decimate::stages::StageClock,
@@ -242,8 +243,8 @@ impl State {
             edge_reach_max: 0.0,
             unmapped_at_start: 0,
             heap: BinaryHeap::new(),
-            queued: HashSet::new(),
-            fail_memo: HashMap::new(),
+            queued: FxHashSet::default(),
+            fail_memo: FxHashMap::default(),
             stats: Stats::default(),
             clock: Default::default(),
             fail_hints: true,

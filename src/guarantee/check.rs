@@ -753,7 +753,7 @@ fn star_of<C: MapContext>(ctx: &C, w: u32) -> Option<Star> {
 /// check, one validation): a scratch that holds it is never handed to another context.
 #[derive(Default)]
 pub struct StarCache {
-    index: std::collections::HashMap<u32, Option<Star>>,
+    index: rustc_hash::FxHashMap<u32, Option<Star>>,
 }
 
 impl StarCache {
@@ -1079,7 +1079,7 @@ pub struct CheckOut {
 #[derive(Default)]
 pub struct EdgeTable {
     /// (start, length) into `arena`, for the edges with inner samples.
-    index: std::collections::HashMap<(u32, u32), (u32, u32)>,
+    index: rustc_hash::FxHashMap<(u32, u32), (u32, u32)>,
     arena: Vec<Sample>,
 }
 
