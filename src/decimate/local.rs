@@ -297,23 +297,37 @@ impl State {
         }
         let reach = (OUTER_REACH * dmax_seen).min(self.dmax);
         let (lo, hi) = (lo - DVec3::splat(reach), hi + DVec3::splat(reach));
-        let mut ids = Vec::new();
-        self.face_grid.query(lo, hi, &mut ids);
-        ids.retain(|&f| tris.index_of(f).is_none() && c.region.binary_search(&f).is_err() && self.topo.face_alive(f));
+        let ids = self.faces_outside(c, tris, lo, hi);
         // Most of the grid's coarse cells lie beyond the box: only the faces whose spheres meet
         // it are prepared ([`Outer::within`]).
         let margin = outer_margin(self.dmax, lo, hi);
+        let within = self.prepare_faces(&ids, |p| sphere_meets_box(crate::geometry::triangle_sphere(p), lo, hi, margin));
+        let mut index = IdIndex::default();
+        index.build(&ids);
+        Outer { within, ids, index, all: std::sync::OnceLock::new(), lo, hi }
+    }
+
+    /// The live faces of the face grid's cells over the box [lo, hi] that lie outside candidate
+    /// `c`'s neighbourhood `tris` and its region (ascending).
+    fn faces_outside(&self, c: &Candidate, tris: &Tris, lo: DVec3, hi: DVec3) -> Vec<u32> {
+        let mut ids = Vec::new();
+        self.face_grid.query(lo, hi, &mut ids);
+        ids.retain(|&f| tris.index_of(f).is_none() && c.region.binary_search(&f).is_err() && self.topo.face_alive(f));
+        ids
+    }
+
+    /// The faces `ids` as they are now, prepared for searches, where `keep` accepts their
+    /// corners (in the order of `ids`).
+    fn prepare_faces(&self, ids: &[u32], keep: impl Fn(&[DVec3; 3]) -> bool) -> Tris {
         let mut t = Tris::default();
-        for &f in &ids {
+        for &f in ids {
             let info = self.face_info_current(f);
-            if sphere_meets_box(crate::geometry::triangle_sphere(&info.pos), lo, hi, margin) {
+            if keep(&info.pos) {
                 t.push(f, info.verts, info.pos, info.dir);
             }
         }
         t.finish();
-        let mut index = IdIndex::default();
-        index.build(&ids);
-        Outer { within: t, ids, index, all: std::sync::OnceLock::new(), lo, hi }
+        t
     }
 
     /// (`--strict`) The paper's uniqueness, verified on the ring too: a vertex associated with
@@ -378,26 +392,15 @@ impl State {
         if reach == 0.0 {
             return;
         }
-        let mut faces = Vec::new();
-        self.face_grid.query(lo - DVec3::splat(reach), hi + DVec3::splat(reach), &mut faces);
-        let mut far = Tris::default();
-        for f in faces {
-            if tris.index_of(f).is_some() || c.region.binary_search(&f).is_ok() || !self.topo.face_alive(f) {
-                continue;
-            }
-            let info = self.face_info_current(f);
-            let (ctr, r) = crate::geometry::triangle_sphere(&info.pos);
-            // Skip faces beyond every vertex's reach.
-            let q = ctr.clamp(lo, hi);
-            if q.distance(ctr) - r > reach {
-                continue;
-            }
-            far.push(f, info.verts, info.pos, info.dir);
-        }
+        let faces = self.faces_outside(c, tris, lo - DVec3::splat(reach), hi + DVec3::splat(reach));
+        // Skip faces beyond every vertex's reach.
+        let far = self.prepare_faces(&faces, |p| {
+            let (ctr, r) = crate::geometry::triangle_sphere(p);
+            !(ctr.clamp(lo, hi).distance(ctr) - r > reach)
+        });
         if far.is_empty() {
             return;
         }
-        far.finish();
         reads.extend_from_slice(&far.ids);
         let dense = &self.dense;
         let mut normals = Vec::new();
@@ -553,20 +556,17 @@ impl Outer {
         if self.covers(x, reach) {
             return &self.within;
         }
-        self.all.get_or_init(|| {
-            let mut t = Tris::default();
-            for &f in &self.ids {
-                let info = st.face_info_current(f);
-                t.push(f, info.verts, info.pos, info.dir);
-            }
-            t.finish();
-            t
-        })
+        self.all.get_or_init(|| st.prepare_faces(&self.ids, |_| true))
     }
     /// Whether the cube of half-side `reach` around `x` lies inside the box.
     fn covers(&self, x: DVec3, reach: f64) -> bool {
-        (x - DVec3::splat(reach)).cmpge(self.lo).all() && (x + DVec3::splat(reach)).cmple(self.hi).all()
+        cube_inside(x, reach, self.lo, self.hi)
     }
+}
+
+/// Whether the cube of half-side `reach` around `x` lies inside the box [lo, hi].
+fn cube_inside(x: DVec3, reach: f64, lo: DVec3, hi: DVec3) -> bool {
+    (x - DVec3::splat(reach)).cmpge(lo).all() && (x + DVec3::splat(reach)).cmple(hi).all()
 }
 
 /// The relative margin of [`Outer::within`]'s sphere test, on the radius and on dmax plus the
@@ -835,8 +835,7 @@ mod tests {
             for _ in 0..50 {
                 let reach = 0.001 + 0.25 * rng.next() * rng.next();
                 let x = origin + rng.vec().clamp(DVec3::splat(-1.0), DVec3::splat(1.0)) * (0.3 - reach);
-                let outer = Outer { within: Tris::default(), ids: Vec::new(), index: IdIndex::default(), all: std::sync::OnceLock::new(), lo, hi };
-                assert!(outer.covers(x, reach));
+                assert!(cube_inside(x, reach, lo, hi));
                 let fa = find_primary_recording(x, &[], &all, NormalMode::Interpolated, reach.min(dmax), reach, &[], &mut sa);
                 let fw = find_primary_recording(x, &[], &within, NormalMode::Interpolated, reach.min(dmax), reach, &[], &mut sw);
                 let hit = |f: Found, t: &Tris| match f {
