@@ -253,6 +253,7 @@ impl State {
         let r = check_faces(&ctx, dense, &faces, &edges, self.fail_hints.then_some(&first[..]), &mut out);
         self.clock.add(Stage::Continuity, out.continuity_ns);
         self.clock.add(Stage::Orientation, out.orientation_ns);
+        self.clock.work(&out.work);
         let mut read_faces = out.reads;
         if let Err((reason, at)) = r {
             if self.fail_hints {
@@ -713,6 +714,7 @@ impl MapContext for CandidateContext<'_> {
             // it, so the faces near it go first ([`find_primary_near_first`]: the same answer
             // and record; the shipped sample 0.85x the time), in the scratch's buffers, not fresh
             // ones (0.82x).
+            scratch.work.grid_searches += 1;
             let mut buf = scratch.take_point_buffers();
             let corners = |f: u32| st.topo.face(f).map(|v| st.pos[v as usize]);
             // The faces whose box lies beyond the reach are passed over first (most of what

@@ -4,7 +4,7 @@
 //! The clocks are atomics on the decimator's state, so parallel evaluation adds to them without
 //! locks; they are read once at the end of a run. They never influence a decision.
 
-use crate::guarantee::Reject;
+use crate::guarantee::{PointWork, Reject};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -46,6 +46,8 @@ pub struct StageClock {
     /// Dense triangles and near edges handed to the check.
     faces: AtomicU64,
     edges: AtomicU64,
+    /// [`PointWork`]'s counts, in its field order.
+    work: [AtomicU64; 4],
 }
 
 impl StageClock {
@@ -75,6 +77,13 @@ impl StageClock {
         self.edges.fetch_add(edges as u64, Ordering::Relaxed);
     }
 
+    /// Adds what one placement's continuity walks did.
+    pub fn work(&self, w: &PointWork) {
+        for (slot, n) in self.work.iter().zip([w.edge_walks, w.exit_solves, w.midpoint_solves, w.grid_searches]) {
+            slot.fetch_add(n, Ordering::Relaxed);
+        }
+    }
+
     /// Adds one failed placement's time by the reason it failed.
     pub fn failed(&self, reason: Reject, since: Instant) {
         let (n, ns) = &self.failed[reason as usize];
@@ -92,6 +101,10 @@ impl StageClock {
             placements_tested: self.placements.load(Ordering::Relaxed),
             faces_checked: self.faces.load(Ordering::Relaxed),
             edges_checked: self.edges.load(Ordering::Relaxed),
+            work: {
+                let [edge_walks, exit_solves, midpoint_solves, grid_searches] = self.work.each_ref().map(|a| a.load(Ordering::Relaxed));
+                PointWork { edge_walks, exit_solves, midpoint_solves, grid_searches }
+            },
             failed_placements: REASONS
                 .iter()
                 .filter(|&&r| self.failed[r as usize].0.load(Ordering::Relaxed) > 0)
@@ -122,6 +135,10 @@ pub struct StageSummary {
     /// check, over all placements (a check stops at its first failure).
     pub faces_checked: u64,
     pub edges_checked: u64,
+    /// What the continuity walks did over all placements: dense edges walked, and the points
+    /// they solved — at exits from a base triangle and at bisection midpoints — of which
+    /// how many searched the face grid beyond the candidate's outer faces.
+    pub work: PointWork,
     /// Failed placements by reason: (reason, count, CPU seconds).
     pub failed_placements: Vec<(String, u64, f64)>,
 }

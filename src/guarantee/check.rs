@@ -336,6 +336,7 @@ pub fn edge_image<C: MapContext>(
     let e = if len > 0.0 { (xb - xa) / len } else { DVec3::X };
     let sa = make_sample(ctx, ma, e);
     let sb = make_sample(ctx, mb, e);
+    scratch.work.edge_walks += 1;
     out.push(sa);
     let floors = Floors { same: SAME_POINT_REL * ctx.dmax(), jump: JUMP_FLOOR_REL * len, min_depth };
     let mut jump = 0.0f64;
@@ -415,6 +416,7 @@ fn refine<C: MapContext>(
         return;
     }
     let mid = 0.5 * (x0 + x1);
+    scratch.work.midpoint_solves += 1;
     let Some(mm) = ctx.solve_point(mid, normals, s0.m.face, s1.m.face, scratch) else {
         *jump = f64::INFINITY;
         out.push(s1);
@@ -503,6 +505,7 @@ fn split_at_exit<C: MapContext>(
     let tn = ctx.face_info(next);
     let kn = (0..3).find(|&k| !t1.verts.contains(&tn.verts[k]))?;
     let xm = x0 + t * (x1 - x0);
+    scratch.work.exit_solves += 1;
     let mm = ctx.solve_point(xm, normals, s0.m.face, next, scratch)?;
     let sm = make_sample(ctx, mm, e);
     // The primary there lies on the shared edge (on both triangles)...
@@ -1068,6 +1071,8 @@ pub struct CheckOut {
     /// stage, summed over the threads.
     pub continuity_ns: u64,
     pub orientation_ns: u64,
+    /// What the walks did ([`PointWork`]), summed over the chunks.
+    pub work: super::primary::PointWork,
 }
 
 /// Edge images walked once and read by every triangle that has the edge, by (lower, higher)
@@ -1254,6 +1259,7 @@ pub fn check_faces<C: MapContext + Sync>(
     let t = std::time::Instant::now();
     let r = hinted.iter().try_for_each(|&item| check(item, &mut sc, &mut stats));
     out.reads.append(&mut sc.solve.take_reads());
+    out.work.add(&sc.solve.work);
     out.continuity_ns += t.elapsed().as_nanos() as u64;
     r?;
     // Continuity: every edge the walk would visit, once — the listed edges and the edges of
@@ -1309,6 +1315,7 @@ pub fn check_faces<C: MapContext + Sync>(
     });
     out.reads.append(&mut rd.0);
     out.continuity_ns += rd.1;
+    out.work.add(&rd.2);
     let mut table = EdgeTable::default();
     for part in walked? {
         table.append(part);
@@ -1322,6 +1329,7 @@ pub fn check_faces<C: MapContext + Sync>(
     });
     out.reads.append(&mut rd.0);
     out.orientation_ns += rd.1;
+    out.work.add(&rd.2);
     oriented.map(|_| ())
 }
 
@@ -1334,34 +1342,35 @@ fn in_chunks<T: Sync, R: Default + Send, E: Send>(
     items: &[T],
     chunks: usize,
     work: impl Fn(&[T], &mut R, &mut CheckScratch, &dyn Fn() -> bool) -> Result<(), E> + Sync,
-) -> (Result<Vec<R>, E>, (Vec<u32>, u64)) {
+) -> (Result<Vec<R>, E>, (Vec<u32>, u64, super::primary::PointWork)) {
     let parts = super::chunks::run_to_first_failure(items, chunks, |chunk, stop| {
         let t = std::time::Instant::now();
         let mut sc = CheckScratch::default();
         let mut out = R::default();
         let r = work(chunk, &mut out, &mut sc, stop);
-        let spent = (sc.solve.take_reads(), t.elapsed().as_nanos() as u64);
+        let spent = (sc.solve.take_reads(), t.elapsed().as_nanos() as u64, sc.solve.work);
         match r {
             Ok(()) => Ok((out, spent)),
             Err(e) => Err((e, spent)),
         }
     });
-    let (mut reads, mut ns) = (Vec::new(), 0);
+    let (mut reads, mut ns, mut work) = (Vec::new(), 0, super::primary::PointWork::default());
     let mut outs = Ok(Vec::with_capacity(parts.len()));
     for part in parts {
-        let (r, (rd, n)) = match part {
+        let (r, (rd, n, w)) = match part {
             Ok((out, spent)) => (Ok(out), spent),
             Err((e, spent)) => (Err(e), spent),
         };
         reads.extend_from_slice(&rd);
         ns += n;
+        work.add(&w);
         match (&mut outs, r) {
             (Ok(v), Ok(out)) => v.push(out),
             (Ok(_), Err(e)) => outs = Err(e),
             (Err(_), _) => {}
         }
     }
-    (outs, (reads, ns))
+    (outs, (reads, ns, work))
 }
 
 #[cfg(test)]
@@ -1369,6 +1378,7 @@ mod tests {
     //! Known-answer tests on hand-made bases, judged through the validator (whole base, no
     //! decimator state).
     use super::*;
+    use crate::guarantee::PointWork;
     use crate::validate::{validate, Base, CheckOptions};
     use glam::DVec3;
 
@@ -1495,6 +1505,8 @@ mod tests {
             let jump = edge_image(&ctx, pa, ma, pb, mb, &normals, 0, &mut scratch, &mut out);
             assert_eq!(jump, 0.0, "{xa} → {xb}");
             solves.push(ctx.solves.get());
+            // The walk counts what it did: one edge, its one solve at the crossing.
+            assert_eq!(scratch.work, PointWork { edge_walks: 1, exit_solves: 1, ..Default::default() });
         }
         // The crossing split alone.
         assert_eq!(solves, [1, 1, 1, 1]);
@@ -1530,6 +1542,7 @@ mod tests {
         let jump = edge_image(&ctx, pa, ma, pb, mb, &normals, 0, &mut scratch, &mut out);
         assert_eq!(jump, 0.0);
         assert_eq!(ctx.solves.get(), 2);
+        assert_eq!(scratch.work, PointWork { edge_walks: 1, exit_solves: 2, ..Default::default() });
         let mut path: Vec<u32> = out.iter().map(|s| s.m.face).collect();
         path.dedup();
         assert_eq!(path, [0, 1, 2]);

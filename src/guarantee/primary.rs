@@ -345,6 +345,35 @@ pub struct Scratch {
     point_faces: Vec<u32>,
     point_tris: Tris,
     point_near: Vec<(u32, FaceInfo)>,
+    /// What the continuity walks using this scratch did (counted as they run).
+    pub work: PointWork,
+}
+
+/// What a check's continuity walks did: the report's `collapses.stages.work`, so that where
+/// the point solves come from is visible without a profiler. Counted per scratch and summed;
+/// with more than one thread a check stops its chunks at different places after a failure,
+/// so the counts (like the stages' times) may differ a little from a one-thread run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct PointWork {
+    /// Dense edges walked.
+    pub edge_walks: u64,
+    /// Points solved where a walk leaves its base triangle (across an edge, or onto the next
+    /// face around a vertex): one full primary search each.
+    pub exit_solves: u64,
+    /// Bisection midpoints solved.
+    pub midpoint_solves: u64,
+    /// Of those points, the ones whose reach left the candidate's outer box and searched the
+    /// face grid themselves.
+    pub grid_searches: u64,
+}
+
+impl PointWork {
+    pub fn add(&mut self, o: &PointWork) {
+        self.edge_walks += o.edge_walks;
+        self.exit_solves += o.exit_solves;
+        self.midpoint_solves += o.midpoint_solves;
+        self.grid_searches += o.grid_searches;
+    }
 }
 
 /// A caller's buffers for one point's search beyond its own set ([`Scratch::take_point_buffers`]).
