@@ -1336,7 +1336,8 @@ pub fn check_faces<C: MapContext + Sync>(
 /// Runs `work` over `items` in `chunks` contiguous chunks on the threads
 /// ([`super::chunks::run_to_first_failure`]), each with its own scratch and output `R`; the
 /// outputs come back in chunk order. The result is the sequential one: the first failure in
-/// item order. Also returns the chunks' [`Scratch::take_reads`] and the nanoseconds they ran, summed.
+/// item order. Also returns the chunks' [`Scratch::take_reads`], the nanoseconds they ran and
+/// their walks' [`PointWork`](super::primary::PointWork), summed.
 #[allow(clippy::type_complexity)]
 fn in_chunks<T: Sync, R: Default + Send, E: Send>(
     items: &[T],
