@@ -821,7 +821,6 @@ mod tests {
         };
         let one = run(1);
         let three = run(3);
-
         let torn_or_flipped: u64 = one.2.iter().filter(|r| r.0 == "tear" || r.0 == "flip").map(|r| r.1).sum();
         // Many such placements (1,361 before the fold rule); the test needs many, not that count.
         assert!(torn_or_flipped > 1000, "the sample rejects placements in the check ({torn_or_flipped})");

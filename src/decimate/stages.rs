@@ -2,10 +2,12 @@
 //! timers): where evaluation time goes, and how much of it is spent on candidates that fail.
 //!
 //! The clocks are atomics on the decimator's state, so parallel evaluation adds to them without
-//! locks; they are read once at the end of a run. They never influence a decision.
+//! locks (the walks' counts, added once per placement, under a mutex); they are read once at the
+//! end of a run. They never influence a decision.
 
 use crate::guarantee::{PointWork, Reject};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
 use std::time::Instant;
 
 /// The stages of one placement's test, in the order they run.
@@ -46,8 +48,8 @@ pub struct StageClock {
     /// Dense triangles and near edges handed to the check.
     faces: AtomicU64,
     edges: AtomicU64,
-    /// [`PointWork`]'s counts, in its field order.
-    work: [AtomicU64; 4],
+    /// What the continuity walks did (added once per placement).
+    work: Mutex<PointWork>,
 }
 
 impl StageClock {
@@ -79,9 +81,7 @@ impl StageClock {
 
     /// Adds what one placement's continuity walks did.
     pub fn work(&self, w: &PointWork) {
-        for (slot, n) in self.work.iter().zip([w.edge_walks, w.exit_solves, w.midpoint_solves, w.grid_searches]) {
-            slot.fetch_add(n, Ordering::Relaxed);
-        }
+        self.work.lock().unwrap_or_else(|e| e.into_inner()).add(w);
     }
 
     /// Adds one failed placement's time by the reason it failed.
@@ -101,10 +101,7 @@ impl StageClock {
             placements_tested: self.placements.load(Ordering::Relaxed),
             faces_checked: self.faces.load(Ordering::Relaxed),
             edges_checked: self.edges.load(Ordering::Relaxed),
-            work: {
-                let [edge_walks, exit_solves, midpoint_solves, grid_searches] = self.work.each_ref().map(|a| a.load(Ordering::Relaxed));
-                PointWork { edge_walks, exit_solves, midpoint_solves, grid_searches }
-            },
+            work: *self.work.lock().unwrap_or_else(|e| e.into_inner()),
             failed_placements: REASONS
                 .iter()
                 .filter(|&&r| self.failed[r as usize].0.load(Ordering::Relaxed) > 0)
