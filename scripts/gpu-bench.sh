@@ -10,9 +10,11 @@
 #       There, from the repository root with .gpubench/ beside the scripts: installs the
 #       loader if the machine has none, points it at NVIDIA's driver where that is installed
 #       outside the loader's search path, then runs
-#       `dispdec bench --meshes M --configs CONFIGS --runs 1 --json OUT/bench-M.json` for each
+#       `dispdec bench --meshes M --configs CONFIGS --runs 1 --json OUT/bench-M-CONFIGS.json` for each
 #       mesh M of MESHES (default: bunny,horse; CONFIGS default cpu,gpu), all within LIMIT_S
-#       seconds (default 420), and writes OUT/env.txt (machine, driver) and OUT/bench.log.
+#       seconds (default 420), and writes OUT/env.txt (machine, driver, the adapter that
+#       `--backend auto` picks) and OUT/bench.log (with each base's sha256, and whether the
+#       paths' bases are the same bytes).
 #       The 1M sample (`sample1m`) is generated there by the binary itself. Exit status: 0,
 #       or the last failing bench's (124 when the limit stopped it; what finished of that mesh
 #       is in the log).
@@ -30,6 +32,7 @@ pack)
   mkdir -p "$pack/data" "$pack/gl"
   grep -qx "/$pack/" .git/info/exclude 2>/dev/null || echo "/$pack/" >>.git/info/exclude
   cp target/release/dispdec "$pack/dispdec"
+  echo "$(git rev-parse --short HEAD)$(git diff --quiet HEAD -- src shaders Cargo.toml Cargo.lock || echo ' (with uncommitted changes)')" >"$pack/commit.txt"
   strip "$pack/dispdec"
   for f in bunny.ply.gz horse.ply.gz igea.ply.gz; do
     cp "$data/$f" "$pack/data/"
@@ -60,14 +63,24 @@ run)
   if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f "$nv" ] && ! ls /usr/share/vulkan/icd.d/*nvidia* /etc/vulkan/icd.d/*nvidia* >/dev/null 2>&1; then
     export VK_DRIVER_FILES=$nv
   fi
+  # Anywhere else the image keeps it (found once, at the start).
+  if [ -z "${VK_DRIVER_FILES:-}" ] && ! ls /usr/share/vulkan/icd.d/*nvidia* /etc/vulkan/icd.d/*nvidia* >/dev/null 2>&1; then
+    icd=$(find /usr /etc /opt -name 'nvidia_icd*.json' 2>/dev/null | head -1 || true)
+    [ -n "$icd" ] && export VK_DRIVER_FILES=$icd
+  fi
   export NODEVICE_SELECT=1
   {
     echo "date: $(date -u +%FT%TZ)"
     echo "machine: $(uname -srm), $(nproc) cores, $(awk '/MemTotal/ {printf "%.0f GiB", $2 / 1048576}' /proc/meminfo)"
     echo "cpu: $(awk -F': ' '/model name/ {print $2; exit}' /proc/cpuinfo)"
     command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | sed 's/^/gpu: /'
-    echo "VK_DRIVER_FILES=${VK_DRIVER_FILES:-}"
-    echo "binary: $("$pack/dispdec" --version)"
+    echo "VK_DRIVER_FILES=${VK_DRIVER_FILES:-}  LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-}"
+    echo "vulkan drivers: $(ls /usr/share/vulkan/icd.d /etc/vulkan/icd.d 2>/dev/null | tr '\n' ' ')"
+    echo "binary: $("$pack/dispdec" --version), commit $(cat "$pack/commit.txt" 2>/dev/null || echo unknown)"
+    # What `--backend auto` finds and picks there, on a 1k-face sample (a few seconds).
+    probe=$(mktemp -d)
+    "$pack/dispdec" -q sample --faces 1000 --seed 1 -o "$probe/s1k.obj"
+    "$pack/dispdec" --verbose decimate "$probe/s1k.obj" -o "$probe/b.obj" --backend auto
   } >"$out/env.txt" 2>&1 || true
   cat "$out/env.txt"
   # One bench a mesh, each with its own JSON, so that the limit loses only the mesh it stops.
@@ -82,10 +95,21 @@ run)
       break
     fi
     name=$(basename "$mesh" | sed 's/[^A-Za-z0-9_.-]/_/g')
+    json="bench-$name-${configs//,/_}.json"
+    work=$(mktemp -d)
     timeout "$left" "$pack/dispdec" bench --verbose --data "$pack/data" --meshes "$mesh" --configs "$configs" \
-      --runs 1 --work "$(mktemp -d)" --json "$out/bench-$name.json" 2>&1 | tee -a "$out/bench.log"
+      --runs 1 --work "$work" --json "$out/$json" 2>&1 | tee -a "$out/bench.log"
     r=${PIPESTATUS[0]}
-    echo "gpu-bench: $mesh: exit $r; $out/bench-$name.json $([ -f "$out/bench-$name.json" ] && echo written || echo 'not written')" | tee -a "$out/bench.log"
+    echo "gpu-bench: $mesh: exit $r; $out/$json $([ -f "$out/$json" ] && echo written || echo 'not written')" | tee -a "$out/bench.log"
+    # The bases each path wrote (the bench keeps the last run's as WORK/MESH-Config.obj): the same bytes?
+    (cd "$work" && sha256sum -- *.obj 2>/dev/null | grep -v 'sample-1m' | sed "s|^|gpu-bench: $mesh: sha256 |") | tee -a "$out/bench.log" || true
+    bases=()
+    for f in "$work"/*-Cpu1.obj "$work"/*-Cpu.obj "$work"/*-Gpu.obj; do [ -f "$f" ] && bases+=("$f"); done
+    if [ "${#bases[@]}" -ge 2 ]; then
+      same="identical bytes"
+      for f in "${bases[@]:1}"; do cmp -s "${bases[0]}" "$f" || same="DIFFERENT bytes"; done
+      echo "gpu-bench: $mesh: the ${#bases[@]} paths' bases ($configs): $same" | tee -a "$out/bench.log"
+    fi
     [ "$r" = 0 ] || rc=$r
   done
   set -e
