@@ -42,7 +42,8 @@ pack)
   mkdir -p "$lists/partial"
   o=(-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 "-oDir::State::Lists=$lists")
   apt-get "${o[@]}" update -qq
-  (cd "$pack/gl" && apt-get "${o[@]}" download libvulkan1 >/dev/null)
+  # libGLX_nvidia, which NVIDIA's Vulkan driver file names, needs glvnd (libGLdispatch).
+  (cd "$pack/gl" && apt-get "${o[@]}" download libvulkan1 libglvnd0 libglx0 libegl1 libgl1 libopengl0 libgles2 >/dev/null)
   rm -rf "$lists"
   du -sh "$pack"
   echo "carry: $pack    command: bash scripts/gpu-bench.sh run \$OUT bunny,horse cpu,gpu 420"
@@ -60,11 +61,12 @@ run)
   fi
   # NVIDIA's driver files outside the loader's search path (as on the lent machines).
   nv=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-  if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f "$nv" ] && ! ls /usr/share/vulkan/icd.d/*nvidia* /etc/vulkan/icd.d/*nvidia* >/dev/null 2>&1; then
+  std_icd() { ls /usr/share/vulkan/icd.d/*nvidia* >/dev/null 2>&1 || ls /etc/vulkan/icd.d/*nvidia* >/dev/null 2>&1; }
+  if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f "$nv" ] && ! std_icd; then
     export VK_DRIVER_FILES=$nv
   fi
   # Anywhere else the image keeps it (found once, at the start).
-  if [ -z "${VK_DRIVER_FILES:-}" ] && ! ls /usr/share/vulkan/icd.d/*nvidia* /etc/vulkan/icd.d/*nvidia* >/dev/null 2>&1; then
+  if [ -z "${VK_DRIVER_FILES:-}" ] && ! std_icd; then
     icd=$(find /usr /etc /opt -name 'nvidia_icd*.json' 2>/dev/null | head -1 || true)
     [ -n "$icd" ] && export VK_DRIVER_FILES=$icd
   fi
@@ -77,9 +79,30 @@ run)
     echo "VK_DRIVER_FILES=${VK_DRIVER_FILES:-}  LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-}"
     echo "vulkan drivers: $(ls /usr/share/vulkan/icd.d /etc/vulkan/icd.d 2>/dev/null | tr '\n' ' ')"
     echo "binary: $("$pack/dispdec" --version), commit $(cat "$pack/commit.txt" 2>/dev/null || echo unknown)"
-    # What `--backend auto` finds and picks there, on a 1k-face sample (a few seconds).
+    echo "loader: $(ldconfig -p | grep -i 'libvulkan' | tr -s ' \t' ' ' | tr '\n' ';')"
+    # Can the GPU path open an adapter? (a 1k-face sample, a few seconds). When it cannot, the
+    # packed loader is installed over whatever the image has, then the driver file is tried
+    # from the standard folders, and the loader's own account is kept.
     probe=$(mktemp -d)
     "$pack/dispdec" -q sample --faces 1000 --seed 1 -o "$probe/s1k.obj"
+    gpu_ok() { "$pack/dispdec" -q decimate "$probe/s1k.obj" -o "$probe/g.obj" --backend gpu >"$probe/gpu.log" 2>&1; }
+    if ! gpu_ok; then
+      echo "gpu: no adapter: $(tail -c 400 "$probe/gpu.log")"
+      VK_LOADER_DEBUG=error,warn,driver "$pack/dispdec" -q decimate "$probe/s1k.obj" -o "$probe/g.obj" --backend gpu 2>&1 | tail -c 3000
+      for f in "$pack"/gl/*.deb; do dpkg -x "$f" /; done
+      ldconfig
+      echo "loader after installing the packed one: $(ldconfig -p | grep -i 'libvulkan' | tr -s ' \t' ' ' | tr '\n' ';')"
+      gpu_ok || for icd in /usr/share/vulkan/icd.d/nvidia_icd.json /etc/vulkan/icd.d/nvidia_icd.json "$nv"; do
+        [ -f "$icd" ] || continue
+        export VK_DRIVER_FILES=$icd
+        gpu_ok && break
+      done
+      gpu_ok && echo "gpu: opened with VK_DRIVER_FILES=${VK_DRIVER_FILES:-}" || {
+        echo "gpu: still no adapter: $(tail -c 400 "$probe/gpu.log")"
+        VK_LOADER_DEBUG=error,warn,driver "$pack/dispdec" -q decimate "$probe/s1k.obj" -o "$probe/g.obj" --backend gpu 2>&1 | tail -c 3000
+      }
+    fi
+    # What `--backend auto` picks there.
     "$pack/dispdec" --verbose decimate "$probe/s1k.obj" -o "$probe/b.obj" --backend auto
   } >"$out/env.txt" 2>&1 || true
   cat "$out/env.txt"
