@@ -84,7 +84,7 @@ impl State {
             match self.evaluate_placement(c, p, &mut tris, &mut scratch, &mut first) {
                 Ok(acc) => {
                     self.clock.candidate(true, pi + 1, t0);
-                    return Ok(Accepted { placement: pi, ..acc });
+                    return Ok(Accepted { placement: pi, test_s: t0.elapsed().as_secs_f64(), ..acc });
                 }
                 Err(r) => {
                     self.clock.failed(r, tp);
@@ -270,7 +270,7 @@ impl State {
         read_vertices.extend_from_slice(&near);
         read_vertices.sort_unstable();
         read_vertices.dedup();
-        Ok(Accepted { placement: 0, position: p, new_dirs, maps, extras, read_faces, read_vertices })
+        Ok(Accepted { placement: 0, position: p, new_dirs, maps, extras, read_faces, read_vertices, test_s: 0.0 })
     }
 
     /// The faces outside the neighbourhood that a bisection midpoint of the checked dense faces

@@ -120,6 +120,9 @@ pub struct Stats {
     /// Candidates put back untried because an earlier commit of their round changed what their
     /// test read (SPEC §3).
     pub deferred: u64,
+    /// Seconds of passing tests thrown away by those deferrals (each candidate's test time as
+    /// `stages.accepted_cpu_s` counts it): the cost of running candidates side by side.
+    pub deferred_test_s: f64,
     pub time_pick_s: f64,
     pub time_evaluate_s: f64,
     pub time_commit_s: f64,
@@ -510,6 +513,7 @@ impl State {
             };
             if stale {
                 self.stats.deferred += 1;
+                self.stats.deferred_test_s += o.as_ref().map_or(0.0, |a| a.test_s);
                 self.push_edge(c.u, c.w);
                 continue;
             }
@@ -880,13 +884,17 @@ mod tests {
             let mut vmark = vec![0u32; st.dense.pos.len()];
             let mut fmark = vec![0u32; st.topo.num_faces_total()];
             let n_ok = outcomes.iter().filter(|o| o.is_ok()).count() as u64;
+            let b_test_s = outcomes[ib].as_ref().unwrap().test_s;
+            assert!(b_test_s > 0.0, "the evaluator times each candidate's test");
             st.commit_collapses(batch, outcomes, &mut vmark, &mut fmark, 1);
             let committed = st.stats.accepted - accepted_before;
             if inject {
                 assert_eq!(st.stats.deferred, 1, "B is deferred");
+                assert_eq!(st.stats.deferred_test_s, b_test_s, "B's test is what the deferral threw away");
                 assert_eq!(committed, n_ok - 1, "everything but B commits");
             } else {
                 assert_eq!(st.stats.deferred, 0);
+                assert_eq!(st.stats.deferred_test_s, 0.0);
                 assert_eq!(committed, n_ok);
             }
             assert!(st.face_count < faces_before);

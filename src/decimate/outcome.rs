@@ -23,6 +23,9 @@ pub struct Accepted {
     pub read_faces: Vec<u32>,
     /// Dense vertices whose maps the test read, ascending.
     pub read_vertices: Vec<u32>,
+    /// Seconds the candidate's test took, all placements tried (as the stage clock counts a
+    /// candidate: wall time on the thread that ran it): what a deferral throws away.
+    pub test_s: f64,
 }
 
 /// A candidate whose every placement failed.

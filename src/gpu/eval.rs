@@ -403,6 +403,7 @@ impl Evaluator for GpuEvaluator {
         // Where each candidate's earlier placements failed (tested first by the next).
         let mut first_fail: Vec<Vec<FailAt>> = batch.iter().map(|c| c.first_fail.clone()).collect();
         let rounds = batch.iter().map(|c| c.placements.len()).max().unwrap_or(0);
+        let mut spent = vec![0.0f64; batch.len()];
         for pi in 0..rounds {
             let pairs: Vec<(usize, usize)> =
                 (0..batch.len()).filter(|&ci| outcomes[ci].is_none() && pi < batch[ci].placements.len()).map(|ci| (ci, pi)).collect();
@@ -414,15 +415,16 @@ impl Evaluator for GpuEvaluator {
             let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
             let kernel_s = t0.elapsed().as_secs_f64();
             let mut fails: Vec<Vec<FailAt>> = pairs.iter().map(|&(ci, _)| std::mem::take(&mut first_fail[ci])).collect();
-            let results: Vec<(Result<Accepted, Reject>, u64)> = pairs
+            let results: Vec<(Result<Accepted, Reject>, u64, f64)> = pairs
                 .par_iter()
                 .zip(prepared.into_par_iter())
                 .zip(fails.par_iter_mut())
                 .map(|((&(ci, pi), prep), first)| {
+                    let t = Instant::now();
                     let c = &batch[ci];
                     let (new_dirs, n_region, tris) = match prep.built {
                         Ok(b) => b,
-                        Err(r) => return (Err(r), 0),
+                        Err(r) => return (Err(r), 0, t.elapsed().as_secs_f64()),
                     };
                     let mine = &answers[prep.first_query..prep.first_query + c.dense.len()];
                     let (solved, states) = state.solve_region_vertices(
@@ -442,16 +444,18 @@ impl Evaluator for GpuEvaluator {
                     let r = solved
                         .and_then(|maps| state.finish_placement(c, prep.position, new_dirs, n_region, &tris, maps, &mut scratch, first))
                         .map(|acc| Accepted { placement: pi, ..acc });
-                    (r, disagreements)
+                    (r, disagreements, t.elapsed().as_secs_f64())
                 })
                 .collect();
             self.add_stats(&answers, results.iter().map(|r| r.1).sum(), kernel_s);
             for (&(ci, _), f) in pairs.iter().zip(fails) {
                 first_fail[ci] = f;
             }
-            for (&(ci, _), (r, _)) in pairs.iter().zip(results) {
+            for (&(ci, _), (r, _, secs)) in pairs.iter().zip(results) {
+                // A candidate's test time: the CPU side of every placement it tried.
+                spent[ci] += secs;
                 match r {
-                    Ok(acc) => outcomes[ci] = Some(Ok(acc)),
+                    Ok(acc) => outcomes[ci] = Some(Ok(Accepted { test_s: spent[ci], ..acc })),
                     Err(reason) => {
                         first_reason[ci].get_or_insert(reason);
                     }
