@@ -24,7 +24,8 @@ pub struct Accepted {
     /// Dense vertices whose maps the test read, ascending.
     pub read_vertices: Vec<u32>,
     /// Seconds the candidate's test took, all placements tried (as the stage clock counts a
-    /// candidate: wall time on the thread that ran it): what a deferral throws away.
+    /// candidate: wall time on the thread that ran it; on the GPU path the CPU side of each
+    /// placement, the shared dispatch not counted): what a deferral throws away.
     pub test_s: f64,
 }
 
