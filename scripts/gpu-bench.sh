@@ -59,17 +59,16 @@ run)
     for f in "$pack"/gl/*.deb; do dpkg -x "$f" /; done
     ldconfig
   fi
-  # NVIDIA's driver files outside the loader's search path (as on the lent machines).
+  # NVIDIA's driver file, only where none lies in the loader's standard folders: the one the
+  # lent machines keep outside them, else wherever the image keeps one.
   nv=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
   std_icd() { ls /usr/share/vulkan/icd.d/*nvidia* >/dev/null 2>&1 || ls /etc/vulkan/icd.d/*nvidia* >/dev/null 2>&1; }
-  if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f "$nv" ] && ! std_icd; then
-    export VK_DRIVER_FILES=$nv
-  fi
-  # Anywhere else the image keeps it (found once, at the start).
   if [ -z "${VK_DRIVER_FILES:-}" ] && ! std_icd; then
-    icd=$(find /usr /etc /opt -name 'nvidia_icd*.json' 2>/dev/null | head -1 || true)
+    icd=$nv
+    [ -f "$icd" ] || icd=$(find /usr /etc /opt -name 'nvidia_icd*.json' 2>/dev/null | head -1 || true)
     [ -n "$icd" ] && export VK_DRIVER_FILES=$icd
   fi
+  loaders() { ldconfig -p | grep -i 'libvulkan' | tr -s ' \t' ' ' | tr '\n' ';'; }
   export NODEVICE_SELECT=1
   {
     echo "date: $(date -u +%FT%TZ)"
@@ -79,28 +78,29 @@ run)
     echo "VK_DRIVER_FILES=${VK_DRIVER_FILES:-}  LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-}"
     echo "vulkan drivers: $(ls /usr/share/vulkan/icd.d /etc/vulkan/icd.d 2>/dev/null | tr '\n' ' ')"
     echo "binary: $("$pack/dispdec" --version), commit $(cat "$pack/commit.txt" 2>/dev/null || echo unknown)"
-    echo "loader: $(ldconfig -p | grep -i 'libvulkan' | tr -s ' \t' ' ' | tr '\n' ';')"
+    echo "loader: $(loaders)"
     # Can the GPU path open an adapter? (a 1k-face sample, a few seconds). When it cannot, the
     # packed loader is installed over whatever the image has, then the driver file is tried
     # from the standard folders, and the loader's own account is kept.
     probe=$(mktemp -d)
     "$pack/dispdec" -q sample --faces 1000 --seed 1 -o "$probe/s1k.obj"
     gpu_ok() { "$pack/dispdec" -q decimate "$probe/s1k.obj" -o "$probe/g.obj" --backend gpu >"$probe/gpu.log" 2>&1; }
-    if ! gpu_ok; then
-      echo "gpu: no adapter: $(tail -c 400 "$probe/gpu.log")"
+    # Why not, in the loader's words.
+    loader_account() {
+      echo "gpu: $1: $(tail -c 400 "$probe/gpu.log")"
       VK_LOADER_DEBUG=error,warn,driver "$pack/dispdec" -q decimate "$probe/s1k.obj" -o "$probe/g.obj" --backend gpu 2>&1 | tail -c 3000
+    }
+    if ! gpu_ok; then
+      loader_account "no adapter"
       for f in "$pack"/gl/*.deb; do dpkg -x "$f" /; done
       ldconfig
-      echo "loader after installing the packed one: $(ldconfig -p | grep -i 'libvulkan' | tr -s ' \t' ' ' | tr '\n' ';')"
+      echo "loader after installing the packed one: $(loaders)"
       gpu_ok || for icd in /usr/share/vulkan/icd.d/nvidia_icd.json /etc/vulkan/icd.d/nvidia_icd.json "$nv"; do
         [ -f "$icd" ] || continue
         export VK_DRIVER_FILES=$icd
         gpu_ok && break
       done
-      gpu_ok && echo "gpu: opened with VK_DRIVER_FILES=${VK_DRIVER_FILES:-}" || {
-        echo "gpu: still no adapter: $(tail -c 400 "$probe/gpu.log")"
-        VK_LOADER_DEBUG=error,warn,driver "$pack/dispdec" -q decimate "$probe/s1k.obj" -o "$probe/g.obj" --backend gpu 2>&1 | tail -c 3000
-      }
+      if gpu_ok; then echo "gpu: opened with VK_DRIVER_FILES=${VK_DRIVER_FILES:-}"; else loader_account "still no adapter"; fi
     fi
     # What `--backend auto` picks there.
     "$pack/dispdec" --verbose decimate "$probe/s1k.obj" -o "$probe/b.obj" --backend auto

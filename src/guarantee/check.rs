@@ -1075,6 +1075,36 @@ pub struct CheckOut {
     pub work: super::primary::PointWork,
 }
 
+/// What one stretch of a check spent: the faces its searches read, its nanoseconds and what its
+/// walks did (one scratch's, or the sum over a stage's chunks).
+#[derive(Default)]
+struct Spent {
+    reads: Vec<u32>,
+    ns: u64,
+    work: super::primary::PointWork,
+}
+
+impl Spent {
+    /// What `scratch` recorded since it was last taken, and the time since `since`.
+    fn take(scratch: &mut Scratch, since: std::time::Instant) -> Spent {
+        Spent { reads: scratch.take_reads(), ns: since.elapsed().as_nanos() as u64, work: std::mem::take(&mut scratch.work) }
+    }
+    fn add(&mut self, o: Spent) {
+        self.reads.extend_from_slice(&o.reads);
+        self.ns += o.ns;
+        self.work.add(&o.work);
+    }
+}
+
+impl CheckOut {
+    /// Adds a stretch's reads and walks; returns its nanoseconds, for the stage's clock.
+    fn absorb(&mut self, mut s: Spent) -> u64 {
+        self.reads.append(&mut s.reads);
+        self.work.add(&s.work);
+        s.ns
+    }
+}
+
 /// Edge images walked once and read by every triangle that has the edge, by (lower, higher)
 /// dense vertex. It holds every edge of the triangles a check judges, all continuous (a jump
 /// ends the check before anything reads the table), and stores of each only its *inner*
@@ -1258,9 +1288,7 @@ pub fn check_faces<C: MapContext + Sync>(
     // Where an earlier try failed: alone, first (they mostly fail again).
     let t = std::time::Instant::now();
     let r = hinted.iter().try_for_each(|&item| check(item, &mut sc, &mut stats));
-    out.reads.append(&mut sc.solve.take_reads());
-    out.work.add(&sc.solve.work);
-    out.continuity_ns += t.elapsed().as_nanos() as u64;
+    out.continuity_ns += out.absorb(Spent::take(&mut sc.solve, t));
     r?;
     // Continuity: every edge the walk would visit, once — the listed edges and the edges of
     // the triangles that are not skipped (exempt or unmapped) — in (lower, higher) order.
@@ -1298,7 +1326,7 @@ pub fn check_faces<C: MapContext + Sync>(
         });
         f.map_or(FailAt::Edge(e.0, e.1), FailAt::Face)
     };
-    let (walked, mut rd) = in_chunks(&walk, chunks(walk.len()), |chunk, out: &mut EdgeTable, sc: &mut CheckScratch, stop| {
+    let (walked, spent) = in_chunks(&walk, chunks(walk.len()), |chunk, out: &mut EdgeTable, sc: &mut CheckScratch, stop| {
         for &((a, b), read) in chunk {
             if stop() {
                 break;
@@ -1313,65 +1341,57 @@ pub fn check_faces<C: MapContext + Sync>(
         }
         Ok(())
     });
-    out.reads.append(&mut rd.0);
-    out.continuity_ns += rd.1;
-    out.work.add(&rd.2);
+    out.continuity_ns += out.absorb(spent);
     let mut table = EdgeTable::default();
     for part in walked? {
         table.append(part);
     }
     let table = std::sync::Arc::new(table);
     // Orientation: every triangle's loop, its edges read from the table.
-    let (oriented, mut rd) = in_chunks(faces, chunks(faces.len()), |chunk, _: &mut (), sc: &mut CheckScratch, stop| {
+    let (oriented, spent) = in_chunks(faces, chunks(faces.len()), |chunk, _: &mut (), sc: &mut CheckScratch, stop| {
         sc.shared = Some(table.clone());
         let mut stats = CheckStats::default();
         chunk.iter().take_while(|_| !stop()).try_for_each(|&f| check(FailAt::Face(f), sc, &mut stats))
     });
-    out.reads.append(&mut rd.0);
-    out.orientation_ns += rd.1;
-    out.work.add(&rd.2);
+    out.orientation_ns += out.absorb(spent);
     oriented.map(|_| ())
 }
 
 /// Runs `work` over `items` in `chunks` contiguous chunks on the threads
 /// ([`super::chunks::run_to_first_failure`]), each with its own scratch and output `R`; the
 /// outputs come back in chunk order. The result is the sequential one: the first failure in
-/// item order. Also returns the chunks' [`Scratch::take_reads`], the nanoseconds they ran and
-/// their walks' [`PointWork`](super::primary::PointWork), summed.
-#[allow(clippy::type_complexity)]
+/// item order. Also returns what the chunks spent ([`Spent`]), summed.
 fn in_chunks<T: Sync, R: Default + Send, E: Send>(
     items: &[T],
     chunks: usize,
     work: impl Fn(&[T], &mut R, &mut CheckScratch, &dyn Fn() -> bool) -> Result<(), E> + Sync,
-) -> (Result<Vec<R>, E>, (Vec<u32>, u64, super::primary::PointWork)) {
+) -> (Result<Vec<R>, E>, Spent) {
     let parts = super::chunks::run_to_first_failure(items, chunks, |chunk, stop| {
         let t = std::time::Instant::now();
         let mut sc = CheckScratch::default();
         let mut out = R::default();
         let r = work(chunk, &mut out, &mut sc, stop);
-        let spent = (sc.solve.take_reads(), t.elapsed().as_nanos() as u64, sc.solve.work);
+        let spent = Spent::take(&mut sc.solve, t);
         match r {
             Ok(()) => Ok((out, spent)),
             Err(e) => Err((e, spent)),
         }
     });
-    let (mut reads, mut ns, mut work) = (Vec::new(), 0, super::primary::PointWork::default());
+    let mut total = Spent::default();
     let mut outs = Ok(Vec::with_capacity(parts.len()));
     for part in parts {
-        let (r, (rd, n, w)) = match part {
+        let (r, spent) = match part {
             Ok((out, spent)) => (Ok(out), spent),
             Err((e, spent)) => (Err(e), spent),
         };
-        reads.extend_from_slice(&rd);
-        ns += n;
-        work.add(&w);
+        total.add(spent);
         match (&mut outs, r) {
             (Ok(v), Ok(out)) => v.push(out),
             (Ok(_), Err(e)) => outs = Err(e),
             (Err(_), _) => {}
         }
     }
-    (outs, (reads, ns, work))
+    (outs, total)
 }
 
 #[cfg(test)]
