@@ -93,12 +93,14 @@ fn horse_rebuilt_at_level_five_matches_the_scan() {
     let said = ok(&["bake", horse.to_str().unwrap(), base.to_str().unwrap(), "--map", map.to_str().unwrap(), "-o", disp.to_str().unwrap()]);
     // The baked map reproduces the decimator's per-vertex d (RMS well below 1 % of dmax).
     let (rms, max) = agreement(&said);
-    // Measured on the 308-face base: RMS 2.19e-5, max 1.01e-3 (where the image folds and two
-    // sheets cover a point; on the 326-face base of the release before 2.02e-5 and 1.40e-3, on
-    // the 336-face base before exact ties 3.53e-5 and 3.33e-3, on the 338-face base before the
-    // fold rule 2.1e-5 and 1.6e-3); bounds about 1.4x that.
+    // Measured on the 366-face base: RMS 1.71e-5, max 1.15e-3 (where the image folds and two
+    // sheets cover a point; on the 308-face base of the release before 2.19e-5 and 1.01e-3, on
+    // the 326-face base before it 2.02e-5 and 1.40e-3, on the 336-face base before exact ties
+    // 3.53e-5 and 3.33e-3, on the 338-face base before the fold rule 2.1e-5 and 1.6e-3); bounds
+    // about 1.4x the larger of the last two bases' figures (the base moves with the order of
+    // collapses).
     assert!(rms < 3.0e-5, "{said}");
-    assert!(max < 1.5e-3, "{said}");
+    assert!(max < 1.6e-3, "{said}");
     assert!(said.contains(" 0 where the map has no d"), "{said}");
     let b = dispdec::app::run::load_base_with_directions(&base).unwrap().base;
     let map = DispMap::read(&disp, b.faces.len()).unwrap();
@@ -112,41 +114,56 @@ fn horse_rebuilt_at_level_five_matches_the_scan() {
         assert!(rms < last_rms, "the error falls with every level: {d:?}");
         last_rms = rms;
         if level == 5 {
-            // Measured on the 308-face base: RMS 1.6e-5 / 1.19e-4, Hausdorff 7.6e-4 / 2.0e-3
-            // (to / from the scan; the 326-face base before: 1.5e-5 / 1.15e-4, 6.4e-4 / 1.5e-3);
-            // bounds 2.5-3x that, well inside the paper's 0.1 % and 1 %.
-            assert!(d.rms_to_scan <= 5e-5 && d.rms_from_scan <= 3.5e-4, "{d:?}");
-            assert!(d.hausdorff_to_scan <= 2e-3 && d.hausdorff_from_scan <= 5e-3, "{d:?}");
+            // Measured on the 366-face base: RMS 1.41e-5 / 1.01e-4, Hausdorff 3.7e-4 / 1.42e-3
+            // (to / from the scan; the 308-face base before: 1.6e-5 / 1.19e-4, 7.6e-4 / 2.0e-3;
+            // the 326-face base before it: 1.5e-5 / 1.15e-4, 6.4e-4 / 1.5e-3); bounds about 2x
+            // the largest of those, well inside the paper's 0.1 % and 1 %.
+            assert!(d.rms_to_scan <= 3.5e-5 && d.rms_from_scan <= 2.5e-4, "{d:?}");
+            assert!(d.hausdorff_to_scan <= 1.6e-3 && d.hausdorff_from_scan <= 4e-3, "{d:?}");
         }
     }
 }
 
-/// The bunny's base has a vertex standing on a spike of the scan (d = 0 there): the dense
+/// A bunny base with a vertex standing on a spike of the scan (d = 0 there): the dense
 /// triangles around the spike all map onto the other faces around that vertex, so one face's
 /// chart is covered by no image for several texels around its corner (a gap of the
 /// projection). The gap takes its covered neighbours' d where that point lies on the scan,
 /// not the nearest crossing of the line (another sheet, d = −0.022), which put the dense
 /// vertex's d 0.022 off and a point of Blender's level-5 rebuild 1.6 % of the diagonal in
-/// the air.
+/// the air. The base is pinned (`data/tests/bunny-157-spike.obj`, the 157-face base dispdec
+/// 97acdbb wrote): which base a decimation ends with moves with every change to the order of
+/// collapses, and the 151-face base of the next release has no such gap near a dense vertex
+/// (its agreement is the same with and without the fill).
 #[test]
 fn a_gap_at_a_spike_takes_its_neighbours_d_not_another_sheets() {
     let Some(bunny) = real_scan("bunny.ply.gz") else { return };
     let dir = tempdir("bake-bunny-gap");
-    let (base, map, disp) = (dir.join("b.obj"), dir.join("b.map"), dir.join("b-disp.pfm"));
+    let base = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tests/bunny-157-spike.obj");
+    let disp = dir.join("b-disp.pfm");
     let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
-    ok(&["decimate", &s(&bunny), "-o", &s(&base), "--map", &s(&map), "-q"]);
-    let said = ok(&["bake", &s(&bunny), &s(&base), "--map", &s(&map), "-o", &s(&disp), "--resolution", "2048"]);
-    // Measured on the 157-face base: RMS 1.85e-5, max 6.93e-4 (the nearest crossing instead:
-    // 1.20e-4 and 2.21e-2); bounds about 1.4x.
-    let (rms, max) = agreement(&said);
-    assert!(rms < 2.6e-5 && max < 1.0e-3, "{said}");
-    // The level-5 rebuild stays on the scan: Hausdorff to the scan 1.96e-3 of the diagonal
-    // (filling every gap whose point lies within a whole dense edge of the scan: 6.07e-3).
+    let said = ok(&["bake", &s(&bunny), &s(&base), "-o", &s(&disp), "--resolution", "2048"]);
+    assert!(said.contains("the pair is valid"), "{said}");
     let b = dispdec::app::run::load_base_with_directions(&base).unwrap().base;
     let m = DispMap::read(&disp, b.faces.len()).unwrap();
     let scan = dispdec::mesh::load_dense(&bunny).unwrap();
+    // The baked map against what it inverts: every dense vertex's primary over the whole base
+    // (the validator's projection; the base's own dmax).
+    let dense = dispdec::mesh::DenseData::new(&scan.positions, &scan.faces);
+    let opts = dispdec::validate::CheckOptions::new(dispdec::eval::NormalMode::Interpolated, 0.02502460501821433);
+    let (verdict, maps) = dispdec::validate::validate_on(&dense, &b, &opts, None).unwrap();
+    assert!(verdict.valid);
+    let diffs: Vec<f64> = maps.iter().flatten().filter_map(|p| m.sample(p.face, p.bary[1], p.bary[2]).map(|d| (d - p.d).abs())).collect();
+    assert!(diffs.len() > 34_800, "{} vertices sampled", diffs.len());
+    let rms = (diffs.iter().map(|x| x * x).sum::<f64>() / diffs.len() as f64).sqrt();
+    let max = diffs.iter().copied().fold(0.0, f64::max);
+    // Measured: RMS 1.85e-5, max 6.93e-4 (the decimator's map: the same figures; the nearest
+    // crossing instead: 1.20e-4 and 2.21e-2); bounds about 1.4x.
+    assert!(rms < 2.6e-5 && max < 1.0e-3, "RMS {rms:.3e}, max {max:.3e}");
+    // The level-5 rebuild stays on the scan: Hausdorff to the scan 1.96e-3 of the diagonal
+    // (filling every gap whose point lies within a whole dense edge of the scan: 6.07e-3).
     let r = dispdec::maps::reconstruct::reconstruct(&b, &m, 5, dispdec::eval::NormalMode::Interpolated);
     let d = dispdec::maps::reconstruct::compare(&r, 5, &scan.positions, &scan.faces);
+    eprintln!("RMS {rms:.3e}, max {max:.3e}; {d:?}");
     assert!(d.hausdorff_to_scan <= 2.5e-3, "{d:?}");
 }
 

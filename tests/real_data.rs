@@ -56,8 +56,8 @@ fn assert_near(name: &str, faces: u64, readme: u64) {
 }
 
 /// README's results table (`bash scripts/results.sh`).
-const BUNNY_FACES: u64 = 157;
-const HORSE_FACES: u64 = 308;
+const BUNNY_FACES: u64 = 151;
+const HORSE_FACES: u64 = 366;
 
 /// The base OBJ: `v`, one `vn` per `v`, `f v//vn`; a manifold with the given genus and loops.
 fn assert_base_obj(bytes: &[u8], faces: u64, genus: i64, loops: u64) {
@@ -126,7 +126,7 @@ fn strict_and_constant_modes_on_the_sample() {
     assert_eq!(r["global"]["strict"], true);
     assert_eq!(r["global"]["ambiguous"], 0, "{}", r["global"]);
     let fs = r["faces_out"].as_u64().unwrap();
-    assert_near("sample --strict", fs, 522);
+    assert_near("sample --strict", fs, 504);
     assert_base_obj(&obj, fs, 0, 1);
     let (r, _, _) = decimate(&scan, &dir, "c", &["--normals", "constant"]);
     assert_eq!(r["normals"], "constant");
@@ -142,9 +142,9 @@ fn strict_and_constant_modes_on_the_sample() {
 }
 
 /// The same modes on the bunny (opt-in: ~25 min here): strict verified globally (README,
-/// Modes: 395 faces); constant mode valid (exit 0: the re-check agrees with the global check
+/// Modes: 421 faces); constant mode valid (exit 0: the re-check agrees with the global check
 /// since near-ties of |d| go by the exact value) with only what the scan itself cannot map
-/// exempt — its 13 vertices and 20 edges — at README's 38,659 faces.
+/// exempt — its 13 vertices and 20 edges — at README's 38,648 faces.
 #[test]
 #[ignore = "slow (~25 min on 2 cores): cargo test --release --test real_data -- --ignored"]
 fn bunny_strict_and_constant_modes() {
@@ -155,14 +155,14 @@ fn bunny_strict_and_constant_modes() {
     assert_eq!(r["global"]["strict"], true);
     assert_eq!(r["global"]["ambiguous"], 0, "{}", r["global"]);
     let fs = r["faces_out"].as_u64().unwrap();
-    assert_near("bunny --strict", fs, 395);
+    assert_near("bunny --strict", fs, 421);
     assert_base_obj(&obj, fs, 0, 5);
     let (r, _, _) = decimate(&bunny, &dir, "c", &["--normals", "constant"]);
     assert_carries(&r);
     assert_eq!(r["unmapped_at_start"], 13);
     assert_eq!(r["global"]["pinched"], 13);
     assert_eq!(r["global"]["exempt_edges"], 20);
-    assert_near("bunny --normals constant", r["faces_out"].as_u64().unwrap(), 38659);
+    assert_near("bunny --normals constant", r["faces_out"].as_u64().unwrap(), 38648);
 }
 
 #[test]
@@ -178,8 +178,8 @@ fn horse_reaches_the_paper_and_carries_the_scan() {
     assert_base_obj(&obj, faces, 0, 0);
 
     // The fold image of the valid base: the scan covers each base face about once. Measured on
-    // the 308-face base: 3,063 folded texels, the most covered face 1.047 (the 326-face base of
-    // the release before: 3,613 and 1.123; before pieces that straddle two faces were unfolded
+    // the 366-face base: 2,938 folded texels, the most covered face 1.047 (the 308-face base of
+    // the release before: 3,063 and 1.047; the 326-face base before it: 3,613 and 1.123; before pieces that straddle two faces were unfolded
     // into each face's chart: 14,330 and 2.24, slivers drawn over); the least 0.0, the 4 faces
     // around the 1 pinched vertex, whose triangles are not drawn. Bounds: 10 % and 0.03 above.
     let (json, png) = (dir.join("hv.json"), dir.join("hv.png"));
@@ -199,7 +199,7 @@ fn horse_reaches_the_paper_and_carries_the_scan() {
     assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
     let v: Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     let cov = &v["coverage"];
-    assert!(cov["folded_texels"].as_u64().unwrap() <= 3_370, "{cov}");
+    assert!(cov["folded_texels"].as_u64().unwrap() <= 3_232, "{cov}");
     assert!(cov["max"].as_f64().unwrap() <= 1.077, "{cov}");
     let pinched_holes = cov["per_face"].as_array().unwrap().iter().filter(|c| c.as_f64().unwrap() < 0.5).count();
     assert_eq!(pinched_holes, 4, "{cov}");

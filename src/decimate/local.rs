@@ -296,7 +296,9 @@ impl State {
                 dmax_seen = dmax_seen.max(d.abs());
             }
         }
-        let reach = (OUTER_REACH * dmax_seen).min(self.dmax);
+        // Widened by how far the round's other commits can move a face: a point records as
+        // read the faces within its reach plus that ([`State::round_move`]).
+        let reach = (OUTER_REACH * dmax_seen).min(self.dmax) + self.round_move;
         let (lo, hi) = (lo - DVec3::splat(reach), hi + DVec3::splat(reach));
         let ids = self.faces_outside(c, tris, lo, hi);
         // Most of the grid's coarse cells lie beyond the box: only the faces whose spheres meet
@@ -393,6 +395,9 @@ impl State {
         if reach == 0.0 {
             return;
         }
+        // Every face that can come within a vertex's reach when the round's other commits move
+        // faces (`round_move`) is read.
+        let reach = reach + self.round_move;
         let faces = self.faces_outside(c, tris, lo - DVec3::splat(reach), hi + DVec3::splat(reach));
         // Skip faces beyond every vertex's reach.
         let far = self.prepare_faces(&faces, |p| {
@@ -703,13 +708,16 @@ impl MapContext for CandidateContext<'_> {
         // lies within |d| of x. First the faces around the checked triangles, then, if the
         // reach leaves their box, a grid query of this point's own.
         let outer = self.outer.get_or_init(|| st.outer_faces(self.c, self.tris, self.faces, self.maps, self.extras));
-        // Every face within that reach is recorded as read (the search's own pass).
-        let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
-        let far = outer.tris_for(st, x, reach);
-        best = pick(best, far, find_primary_recording(x, normals, far, st.mode, reach.min(st.dmax), reach, &hint(far), scratch));
-        let reach = best.map_or(st.dmax, |m| m.d.abs() + tie);
-        let (blo, bhi) = (x - DVec3::splat(reach), x + DVec3::splat(reach));
-        if !outer.covers(x, reach) {
+        // Recorded as read: every face that can come within the reach the search ends with
+        // (its hit's |d| + the tie) when the round's other commits move faces by up to
+        // `round_move` ([`crate::guarantee::record_upto`]).
+        let m = st.round_move;
+        let reach = best.map_or(st.dmax, |h| h.d.abs() + tie);
+        let far = outer.tris_for(st, x, reach + m);
+        best = pick(best, far, find_primary_recording(x, normals, far, st.mode, reach.min(st.dmax), reach, m, &hint(far), scratch));
+        let reach = best.map_or(st.dmax, |h| h.d.abs() + tie);
+        let (blo, bhi) = (x - DVec3::splat(reach + m), x + DVec3::splat(reach + m));
+        if !outer.covers(x, reach + m) {
             // Often a point with no hit yet, whose reach is dmax: thousands of faces lie within
             // it, so the faces near it go first ([`find_primary_near_first`]: the same answer
             // and record; the shipped sample 0.85x the time), in the scratch's buffers, not fresh
@@ -720,7 +728,7 @@ impl MapContext for CandidateContext<'_> {
             // The faces whose box lies beyond the reach are passed over first (most of what
             // a cell holds around a point of small reach): the search would skip them. With the
             // recorded faces tested by box alone, the sample 0.87x the time again.
-            let near_box = |f: u32| st.topo.face_alive(f) && !beyond_box(x, &corners(f), reach);
+            let near_box = |f: u32| st.topo.face_alive(f) && !beyond_box(x, &corners(f), reach + m);
             st.face_grid.query_where(blo, bhi, near_box, &mut buf.faces);
             // Faces beyond the neighbourhood (the region's old faces are gone) and the outer set
             // (the cull above kept live faces only).
@@ -738,6 +746,7 @@ impl MapContext for CandidateContext<'_> {
                 st.mode,
                 st.dmax,
                 reach,
+                m,
                 first,
                 [fa, fb],
                 &mut buf.tris,
@@ -838,8 +847,8 @@ mod tests {
                 let reach = 0.001 + 0.25 * rng.next() * rng.next();
                 let x = origin + rng.vec().clamp(DVec3::splat(-1.0), DVec3::splat(1.0)) * (0.3 - reach);
                 assert!(cube_inside(x, reach, lo, hi));
-                let fa = find_primary_recording(x, &[], &all, NormalMode::Interpolated, reach.min(dmax), reach, &[], &mut sa);
-                let fw = find_primary_recording(x, &[], &within, NormalMode::Interpolated, reach.min(dmax), reach, &[], &mut sw);
+                let fa = find_primary_recording(x, &[], &all, NormalMode::Interpolated, reach.min(dmax), reach, 0.0, &[], &mut sa);
+                let fw = find_primary_recording(x, &[], &within, NormalMode::Interpolated, reach.min(dmax), reach, 0.0, &[], &mut sw);
                 let hit = |f: Found, t: &Tris| match f {
                     Found::Hit(i, h) => Some((t.ids[i], h.d.to_bits(), h.bary.map(f64::to_bits))),
                     _ => None,

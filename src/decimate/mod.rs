@@ -154,6 +154,10 @@ pub struct State {
     pub face_grid: FaceGrid,
     /// An upper bound on |d| over all associations (grows as the base coarsens).
     pub max_abs_d: f64,
+    /// How far a commit of the current round can move a base face: the longest edge among the
+    /// round's candidates (a collapse moves its faces by at most its edge's length; 0 for a
+    /// round of one). Searches record as read every face that can come within their reach.
+    pub round_move: f64,
     /// Per dense vertex, half its longest incident edge: every point of its edges lies within
     /// this distance of it or of the edge's other end.
     pub edge_reach: Vec<f64>,
@@ -231,6 +235,7 @@ impl State {
             grid: DenseGrid::new(&dense.positions),
             face_grid: FaceGrid::new(&dense.positions, &dense.topology),
             max_abs_d: 0.0,
+            round_move: 0.0,
             edge_reach: {
                 let mut r = vec![0.0f64; nv];
                 for t in &dense.faces {
@@ -599,6 +604,7 @@ impl State {
                 }
                 continue;
             }
+            self.round_move = round_move(&self.pos, &batch);
             let outcomes = evaluator.evaluate(self, &batch)?;
             let t2 = Instant::now();
             // With a target, never commit past it: the rest of the batch stays untried.
@@ -719,6 +725,14 @@ pub struct BaseMesh {
     pub faces: Vec<[u32; 3]>,
     /// Internal face id → output face id (INVALID for deleted faces).
     pub face_map: Vec<u32>,
+}
+
+/// [`State::round_move`] for a batch: its longest candidate edge, 0 for a batch of one.
+fn round_move(pos: &[DVec3], batch: &[Candidate]) -> f64 {
+    if batch.len() < 2 {
+        return 0.0;
+    }
+    batch.iter().map(|c| pos[c.u as usize].distance(pos[c.w as usize])).fold(0.0, f64::max)
 }
 
 #[cfg(test)]
@@ -844,6 +858,21 @@ mod tests {
             assert!(a <= b && b * 100 <= a * 105, "{w1:?} against {w3:?}");
         }
         assert!(w1.exit_solves > w1.midpoint_solves && w1.midpoint_solves > w1.grid_searches && w1.grid_searches > 0, "{w1:?}");
+    }
+
+    #[test]
+    fn a_round_moves_faces_by_at_most_its_longest_edge() {
+        // A round of one moves nothing another candidate could read (0); a wider round, its
+        // longest candidate edge (a collapse moves its faces by at most that).
+        let mesh = grid_mesh(24);
+        let mut st = State::new(&mesh, &Options::default());
+        let mut marks = vec![0u32; st.pos.len()];
+        let batch = st.pick_collapses(16, &mut marks, 1);
+        assert!(batch.len() >= 2);
+        let longest = batch.iter().map(|c| st.pos[c.u as usize].distance(st.pos[c.w as usize])).fold(0.0, f64::max);
+        assert!(longest > 0.0);
+        assert_eq!(round_move(&st.pos, &batch), longest);
+        assert_eq!(round_move(&st.pos, &batch[..1]), 0.0);
     }
 
     #[test]

@@ -341,6 +341,9 @@ pub struct Scratch {
     /// Bit f: face f is in `reads` (a bisection's midpoints read the same faces millions of
     /// times over a run; a set, not a list of every read).
     read_bits: Vec<u64>,
+    /// Faces a recording search met within its record reach plus margin, with their bounds:
+    /// recorded when the search ends, those within what its hit leaves ([`Scratch::flush_reads`]).
+    pending: Vec<(u32, f64)>,
     /// A caller's buffers for one point's own faces ([`Scratch::take_point_buffers`]).
     point_faces: Vec<u32>,
     point_tris: Tris,
@@ -430,6 +433,18 @@ impl Scratch {
         within
     }
 
+    /// Records the pending faces whose bound is within `upto`, and forgets the rest.
+    fn flush_reads(&mut self, upto: f64) {
+        let pending = std::mem::take(&mut self.pending);
+        for &(f, b) in &pending {
+            if b <= upto {
+                self.note_read(f);
+            }
+        }
+        self.pending = pending;
+        self.pending.clear();
+    }
+
     /// Whether face `f` is in the read record.
     #[inline]
     fn has_read(&self, f: u32) -> bool {
@@ -498,9 +513,10 @@ pub fn find_primary_hinted(
 }
 
 /// [`find_primary_hinted`] (condition (4) applied, not strict) that also records in the read
-/// record ([`Scratch::take_reads`]) the faces whose sphere bound is within `record` (≥ `dmax`,
-/// the search's reach): one pass over the triangles instead of two, the same search and the same
-/// record.
+/// record ([`Scratch::take_reads`]) the faces whose sphere bound is within [`record_upto`]:
+/// `record` (≥ `dmax`, the search's reach), or the hit's |d| plus the tie where that is less,
+/// plus `margin` (how far the round's other commits can move a face). One pass over the
+/// triangles instead of two: the same search, and the record that search would make.
 #[allow(clippy::too_many_arguments)]
 pub fn find_primary_recording(
     x: DVec3,
@@ -509,10 +525,20 @@ pub fn find_primary_recording(
     mode: NormalMode,
     dmax: f64,
     record: f64,
+    margin: f64,
     hint: &[usize],
     scratch: &mut Scratch,
 ) -> Found {
-    search_primary(x, normals, tris, mode, dmax, true, false, hint, Some(record.max(dmax)), scratch)
+    search_primary(x, normals, tris, mode, dmax, true, false, hint, Some((record.max(dmax), margin)), scratch)
+}
+
+/// How far from a point a recording search records the faces it met: a face can change what the
+/// search found only if it can come within the search's final reach — `record`, or less, the
+/// hit's |d| plus the tie — and a commit of the same round moves a face by at most `margin`
+/// (a collapse moves its faces by at most its edge's length). A face whose bound exceeds that
+/// could hold no better solution before the round, and cannot after it.
+pub fn record_upto(record: f64, margin: f64, hit: Option<f64>, tie: f64) -> f64 {
+    hit.map_or(record, |d| record.min(d + tie)) + margin
 }
 
 /// [`find_primary_recording`] (reach and record both `reach`, the search's own dmax `reach` ≤
@@ -522,8 +548,10 @@ pub fn find_primary_recording(
 /// face id and solution, bit for bit). `faces` may come in any order and with repeats (a grid's
 /// cells); it is sorted in place where the whole search runs.
 ///
-/// Every face within reach is recorded (its sphere bound as that search judges it) unless the
-/// record holds it already: such a face costs a box test, not its exact distance. The search goes
+/// Recorded as that search records: every face within `reach + margin` whose sphere bound is
+/// within [`record_upto`] of the answer, unless the record holds it already (such a face costs a
+/// box test, not its exact distance); the faces between `reach` and `reach + margin` are
+/// recorded, not searched. The search goes
 /// first over the faces within `first` only, in ascending id as the whole search lists them, and
 /// their hit is final when its |d| plus the tie stays within `first`: a farther face holds no
 /// solution with a smaller |d| (|x − X| ≤ |d|·|N| ≤ |d|), and a root within range is found with
@@ -544,6 +572,7 @@ pub fn find_primary_near_first(
     mode: NormalMode,
     dmax: f64,
     reach: f64,
+    margin: f64,
     first: f64,
     hint: [u32; 2],
     t: &mut Tris,
@@ -553,7 +582,7 @@ pub fn find_primary_near_first(
     let tie = SAME_SOLUTION_REL * dmax;
     let hint_in = |t: &Tris| hint.map(|f| t.index_of(f).unwrap_or(usize::MAX));
     // A search of `t` (recording within `record`, if any): its hit by face id.
-    let search = |t: &Tris, record: Option<f64>, scratch: &mut Scratch| match search_primary(x, normals, t, mode, reach.min(dmax), true, false, &hint_in(t), record, scratch) {
+    let search = |t: &Tris, record: Option<(f64, f64)>, scratch: &mut Scratch| match search_primary(x, normals, t, mode, reach.min(dmax), true, false, &hint_in(t), record, scratch) {
         Found::Hit(i, h) => Some((t.ids[i], h)),
         _ => None,
     };
@@ -567,11 +596,17 @@ pub fn find_primary_near_first(
         }
         let Some(fi) = info(f) else { continue };
         let dist = triangle_distance(x, &fi.pos);
-        if dist > reach {
+        if dist > reach + margin {
             continue;
         }
-        if !recorded && recorded_within(x, triangle_sphere(&fi.pos), reach) {
-            scratch.note_read(f);
+        if !recorded {
+            let sphere = triangle_sphere(&fi.pos);
+            if recorded_within(x, sphere, reach + margin) {
+                scratch.pending.push((f, sphere_lower_bound(x, sphere.0, sphere.1)));
+            }
+        }
+        if dist > reach {
+            continue; // recorded (perhaps), not searched
         }
         if dist <= first {
             near.push((f, fi));
@@ -588,6 +623,7 @@ pub fn find_primary_near_first(
     t.finish();
     let found = search(t, None, scratch);
     if !beyond_first || found.is_some_and(|(_, h)| h.d.abs() + tie <= first) {
+        scratch.flush_reads(record_upto(reach, margin, found.map(|(_, h)| h.d.abs()), tie));
         return found;
     }
     faces.sort_unstable();
@@ -600,7 +636,7 @@ pub fn find_primary_near_first(
         }
     }
     t.finish();
-    search(t, Some(reach), scratch)
+    search(t, Some((reach, margin)), scratch)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -613,7 +649,7 @@ fn search_primary(
     check4: bool,
     strict: bool,
     hint: &[usize],
-    record: Option<f64>,
+    record: Option<(f64, f64)>,
     scratch: &mut Scratch,
 ) -> Found {
     let m = tris.len();
@@ -675,7 +711,7 @@ fn search_primary(
     let mut order = std::mem::take(&mut scratch.order);
     order.clear();
     // A recording search passes over the faces beyond the larger of the two reaches.
-    let lim = record.map_or(reach, |r| r.max(reach));
+    let lim = record.map_or(reach, |(r, margin)| (r + margin).max(reach));
     // The sphere test first over a block of faces without a branch (a mask, so that the
     // mostly unpredictable outcome costs no mispredicted jump), then the faces it kept.
     for (block, spheres) in tris.sphere.chunks(64).enumerate() {
@@ -687,8 +723,8 @@ fn search_primary(
             let t = 64 * block + kept.trailing_zeros() as usize;
             kept &= kept - 1;
             let b = bound(t);
-            if record.is_some_and(|r| b <= r) {
-                scratch.note_read(tris.ids[t]);
+            if record.is_some_and(|(r, margin)| b <= r + margin) {
+                scratch.pending.push((tris.ids[t], b));
             }
             if b <= reach && !hinted(t, hint.len()) {
                 order.push(Reverse((total_order_key(b), t as u32)));
@@ -721,6 +757,9 @@ fn search_primary(
     }
     kept.clear();
     scratch.order = kept;
+    if let Some((r, margin)) = record {
+        scratch.flush_reads(record_upto(r, margin, best.map(|(_, h)| h.d.abs()), tie));
+    }
     if strict && scratch.found.len() > 1 {
         return Found::Ambiguous;
     }
@@ -859,12 +898,17 @@ mod tests {
             let record = reach * [1.0, 1.3][(i / 8) % 2];
             let hint = [i % 60, (7 * i) % 60];
             let hint = &hint[..i % 3];
-            let want = if two.record_within(x, &tris, record) == 0 {
-                Found::None
-            } else {
-                find_primary_hinted(x, &[], &tris, mode, reach, true, false, hint, &mut two)
+            // Recorded: the faces within the reach the search ends with (the hit's |d| + the
+            // tie, or the record reach), plus the margin.
+            let margin = [0.0, 0.1][(i / 16) % 2];
+            let want = find_primary_hinted(x, &[], &tris, mode, reach, true, false, hint, &mut two);
+            let hit = match want {
+                Found::Hit(_, h) => Some(h.d.abs()),
+                _ => None,
             };
-            let got = find_primary_recording(x, &[], &tris, mode, reach, record, hint, &mut one);
+            let upto = super::record_upto(record, margin, hit, super::SAME_SOLUTION_REL * reach);
+            two.record_within(x, &tris, upto);
+            let got = find_primary_recording(x, &[], &tris, mode, reach, record, margin, hint, &mut one);
             assert_eq!(got, want, "point {i}");
             let reads = one.take_reads();
             assert_eq!(reads, two.take_reads(), "point {i}");
@@ -889,8 +933,9 @@ mod tests {
             }
         }
         // Measured: 1,665 hits, 998 searches with more than SELECT_MAX triangles in reach (the
-        // heap), 60,785 faces recorded (bounds 10 % below).
-        assert!(hits > 1_490 && heaps > 890 && recorded > 54_700, "{hits} hits, {heaps} searches by heap, {recorded} faces recorded");
+        // heap), 25,543 faces recorded (60,785 when every face within the record reach was;
+        // bounds 10 % below).
+        assert!(hits > 1_490 && heaps > 890 && recorded > 22_900, "{hits} hits, {heaps} searches by heap, {recorded} faces recorded");
     }
 
     #[test]
@@ -928,24 +973,26 @@ mod tests {
             let x = shell_or_anywhere(&mut rng, &tris, i, 0.6);
             let reach = [dmax, 0.8][i % 2];
             let first = [0.05, 0.2, 0.5][(i / 2) % 3];
+            let margin = [0.0, 0.1][(i / 48) % 2];
             let hint = [faces[(i * 7) % 400], faces[(i * 13) % 400]];
-            // The whole search over a set of its own: the faces within reach, ascending.
+            // The whole search over a set of its own: the faces within reach (and the margin,
+            // which it records but does not search), ascending.
             let mut whole = Tris::default();
             for &f in &faces {
                 if let Some(fi) = info(f) {
-                    if crate::geometry::triangle_distance(x, &fi.pos) <= reach {
+                    if crate::geometry::triangle_distance(x, &fi.pos) <= reach + margin {
                         whole.push(f, fi.verts, fi.pos, fi.dir);
                     }
                 }
             }
             whole.finish();
             let hint_in = hint.map(|f| whole.index_of(f).unwrap_or(usize::MAX));
-            let want = match find_primary_recording(x, &[], &whole, mode, reach.min(dmax), reach, &hint_in, &mut two) {
+            let want = match find_primary_recording(x, &[], &whole, mode, reach.min(dmax), reach, margin, &hint_in, &mut two) {
                 Found::Hit(t, h) => Some((whole.ids[t], h)),
                 _ => None,
             };
             list.clone_from(&listed);
-            let got = find_primary_near_first(x, &[], &mut list, corners, info, mode, dmax, reach, first, hint, &mut buf, &mut near_buf, &mut one);
+            let got = find_primary_near_first(x, &[], &mut list, corners, info, mode, dmax, reach, margin, first, hint, &mut buf, &mut near_buf, &mut one);
             assert_eq!(got.map(|(f, h)| (f, h.d.to_bits(), h.bary.map(f64::to_bits))), want.map(|(f, h)| (f, h.d.to_bits(), h.bary.map(f64::to_bits))), "point {i}");
             if i % 8 == 7 {
                 let (mut a, mut b) = (one.take_reads(), two.take_reads());
