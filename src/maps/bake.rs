@@ -242,19 +242,32 @@ const GAP_FILL_RADIUS: i64 = 24;
 /// level-5 rebuild's Hausdorff distance, 0.196 % → 0.607 %).
 const GAP_FILL_TOLERANCE_EDGES: f64 = 0.25;
 
+/// How far (mean dense edge lengths) a refused gap texel's point looks for the scan face nearest
+/// it, to tell a point over a hole of the scan (nearest a boundary face) from one off the scan
+/// elsewhere. Why: beyond a few edges from any scan face the point is not at a hole's rim, and
+/// the texel keeps its crossing as before.
+const GAP_HOLE_SEARCH_EDGES: f64 = 8.0;
+
 /// Gives a texel in a gap of the projection the d of the nearest texel of the same face that a
 /// dense triangle's image covers (the smallest squared distance, then the lowest index), where
 /// the point X + d·N(X) then lies on the scan (GAP_FILL_TOLERANCE_EDGES), so that the map
 /// continues the scan's own values across the gap instead of jumping to a crossing of the line
 /// on another sheet (on the bunny's 157-face base a chart corner held d = −0.022 where the scan
-/// has 0, and a bilinear lookup there rebuilt a point in the air). Other gaps keep the nearest
-/// crossing; returns how many were filled so.
+/// has 0, and a bilinear lookup there rebuilt a point in the air). Where that point would hover
+/// over a hole of the scan instead (the scan face nearest it has an edge on the scan's boundary)
+/// the texel holds no d, as a hole's texels with no crossing do: the crossing there lies on
+/// another sheet (on the bunny's 151-face base, d ≈ −0.022 at the rim of a bottom hole, and
+/// Blender's bilinear lookup across it rebuilt a point 2.35 % of the diagonal off the scan).
+/// Other gaps keep the nearest crossing; returns how many were filled from a neighbour.
 fn fill_gaps(atlas: &Atlas, base: &Base, mode: NormalMode, dense: &DenseData, bvh: &Bvh, texels: Vec<(f32, [f32; 3], u8)>) -> (Vec<(f32, [f32; 3], u8)>, usize) {
     let n = atlas.size as i64;
     let face_of = |x: i64, y: i64| atlas.texel_any(x as u32, y as u32).map(|t| t.0);
     let edges: f64 = dense.faces.iter().map(|f| (0..3).map(|k| dense.pos[f[k] as usize].distance(dense.pos[f[(k + 1) % 3] as usize])).sum::<f64>()).sum();
-    let tolerance = GAP_FILL_TOLERANCE_EDGES * edges / (3 * dense.faces.len()).max(1) as f64;
-    let filled: Vec<(usize, f32)> = (0..texels.len())
+    let mean_edge = edges / (3 * dense.faces.len()).max(1) as f64;
+    let tolerance = GAP_FILL_TOLERANCE_EDGES * mean_edge;
+    let rim = rim_faces(&dense.faces);
+    // (texel, its d, SOURCE_GAP: filled from a neighbour, or SOURCE_NONE: over a hole)
+    let filled: Vec<(usize, f32, u8)> = (0..texels.len())
         .into_par_iter()
         .filter(|&i| texels[i].2 == SOURCE_GAP)
         .map_init(Vec::new, |near, i| {
@@ -266,17 +279,36 @@ fn fill_gaps(atlas: &Atlas, base: &Base, mode: NormalMode, dense: &DenseData, bv
             })?;
             let d = texels[j].0;
             let (_, _, x, dir) = texel_point_bary(atlas, base, mode, px as u32, py as u32)?;
-            bvh.near(&dense.pos, &dense.faces, x + d as f64 * dir, tolerance, near);
-            (!near.is_empty()).then_some((i, d))
+            let p = x + d as f64 * dir;
+            bvh.near(&dense.pos, &dense.faces, p, tolerance, near);
+            if !near.is_empty() {
+                return Some((i, d, SOURCE_GAP));
+            }
+            bvh.near(&dense.pos, &dense.faces, p, GAP_HOLE_SEARCH_EDGES * mean_edge, near);
+            near.first().is_some_and(|&(_, g)| rim[g as usize]).then_some((i, f32::NAN, SOURCE_NONE))
         })
         .flatten()
         .collect();
-    let count = filled.len();
+    let count = filled.iter().filter(|t| t.2 == SOURCE_GAP).count();
     let mut texels = texels;
-    for (i, d) in filled {
+    for (i, d, source) in filled {
         texels[i].0 = d;
+        texels[i].2 = source;
     }
     (texels, count)
+}
+
+/// Per dense face, whether it has an edge on the scan's boundary (an edge of one face only).
+fn rim_faces(faces: &[[u32; 3]]) -> Vec<bool> {
+    let mut edges: Vec<(u32, u32, u32)> = faces.iter().enumerate().flat_map(|(f, t)| (0..3).map(move |k| (t[k].min(t[(k + 1) % 3]), t[k].max(t[(k + 1) % 3]), f as u32))).collect();
+    edges.sort_unstable();
+    let mut rim = vec![false; faces.len()];
+    for run in edges.chunk_by(|a, b| (a.0, a.1) == (b.0, b.1)) {
+        if let [(_, _, f)] = run {
+            rim[*f as usize] = true;
+        }
+    }
+    rim
 }
 
 /// Where a ring search stops: at the end of the first ring that holds an accepted texel, or
@@ -562,4 +594,25 @@ fn read_exr(bytes: &[u8]) -> Result<(usize, Vec<f32>), Result<Kind, String>> {
         return Err(Err("expected a square one-channel EXR".into()));
     }
     Ok((size.0, layer.channel_data.list[0].sample_data.values_as_f32().collect()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::rim_faces;
+
+    #[test]
+    fn rim_faces_are_those_with_an_edge_of_one_face() {
+        // A tetrahedron is closed: no rim. Without its bottom face (0 2 1) the three faces
+        // around the hole each have one edge of one face.
+        //        3
+        //       /|\
+        //      0-+-2
+        //       \|/
+        //        1
+        let tet = [[0, 1, 3], [1, 2, 3], [2, 0, 3], [0, 2, 1]];
+        assert_eq!(rim_faces(&tet), vec![false; 4]);
+        assert_eq!(rim_faces(&tet[..3]), vec![true; 3]);
+        // A strip of two: both on the rim.
+        assert_eq!(rim_faces(&[[0, 1, 2], [2, 1, 3]]), vec![true, true]);
+    }
 }
