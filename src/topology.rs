@@ -144,6 +144,12 @@ impl Topology {
         Ok(topo)
     }
 
+    /// Whether face `f` has an edge on a boundary (an edge no other face shares).
+    #[inline]
+    pub fn face_on_boundary(&self, f: u32) -> bool {
+        (3 * f..3 * f + 3).any(|h| self.opp[h as usize] == INVALID)
+    }
+
     #[inline]
     pub fn num_faces_total(&self) -> usize {
         self.corner.len() / 3
@@ -425,6 +431,25 @@ mod tests {
     //   0 ------- 1
     fn fan() -> Vec<[u32; 3]> {
         vec![[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]]
+    }
+
+    #[test]
+    fn faces_on_the_boundary_have_an_edge_of_one_face() {
+        // A tetrahedron is closed: no face on a boundary. Without its bottom face (0 2 1) the
+        // three faces around the hole each have one edge of one face.
+        //        3
+        //       /|\
+        //      0-+-2
+        //       \|/
+        //        1
+        let tet = [[0, 1, 3], [1, 2, 3], [2, 0, 3], [0, 2, 1]];
+        let closed = Topology::build(4, &tet).unwrap();
+        assert!((0..4).all(|f| !closed.face_on_boundary(f)));
+        let open = Topology::build(4, &tet[..3]).unwrap();
+        assert!((0..3).all(|f| open.face_on_boundary(f)));
+        // The fan below: every face has one outer edge.
+        let t = Topology::build(5, &fan()).unwrap();
+        assert!((0..4).all(|f| t.face_on_boundary(f)));
     }
 
     #[test]

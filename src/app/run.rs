@@ -715,7 +715,7 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
     };
     // The primaries of the whole scan over the whole base: the map inverts exactly these.
     let (verdict, maps) = crate::validate::validate_on(&dense, b, &crate::validate::CheckOptions::new(normals, dmax), None)?;
-    let (map, sources) = crate::maps::bake::bake(&dense, b, &maps, normals, dmax, job.resolution);
+    let (map, sources) = crate::maps::bake::bake(&dense, &scan.topology, b, &maps, normals, dmax, job.resolution);
     let agreement = per_vertex.map(|m| {
         let mut diffs = Vec::new();
         let mut missing = 0;

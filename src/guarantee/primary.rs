@@ -435,13 +435,12 @@ impl Scratch {
 
     /// Records the pending faces whose bound is within `upto`, and forgets the rest.
     fn flush_reads(&mut self, upto: f64) {
-        let pending = std::mem::take(&mut self.pending);
-        for &(f, b) in &pending {
+        for i in 0..self.pending.len() {
+            let (f, b) = self.pending[i];
             if b <= upto {
                 self.note_read(f);
             }
         }
-        self.pending = pending;
         self.pending.clear();
     }
 

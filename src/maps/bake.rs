@@ -17,6 +17,7 @@ use crate::guarantee::{Map, NormalMode};
 use crate::maps::fold::Atlas;
 use crate::geometry::{clamp_bary, face_normal, interpolate_direction};
 use crate::mesh::DenseData;
+use crate::topology::Topology;
 use crate::validate::Base;
 use crate::Error;
 use glam::DVec3;
@@ -154,8 +155,9 @@ pub struct BakeSources {
 }
 
 /// Bakes every texel of `base`'s atlas from the dense triangles' images: `maps[v]` is dense
-/// vertex v's primary solution over the whole base (the validator's projection).
-pub fn bake(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMode, dmax: f64, size: u32) -> (DispMap, BakeSources) {
+/// vertex v's primary solution over the whole base (the validator's projection); `topo` is the
+/// scan's topology (where its holes are).
+pub fn bake(dense: &DenseData, topo: &Topology, base: &Base, maps: &[Option<Map>], mode: NormalMode, dmax: f64, size: u32) -> (DispMap, BakeSources) {
     let owners = crate::maps::fold::cover_owners(dense, base, maps, mode, dmax, size);
     let atlas = owners.atlas;
     let n = atlas.size;
@@ -211,7 +213,7 @@ pub fn bake(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMo
             }
         })
         .collect();
-    let (texels, filled) = fill_gaps(&atlas, base, mode, dense, &bvh, texels);
+    let (texels, filled) = fill_gaps(&atlas, base, mode, dense, topo, &bvh, texels);
     let mut sources = BakeSources::default();
     for t in &texels {
         match t.2 {
@@ -259,13 +261,12 @@ const GAP_HOLE_SEARCH_EDGES: f64 = 8.0;
 /// another sheet (on the bunny's 151-face base, d ≈ −0.022 at the rim of a bottom hole, and
 /// Blender's bilinear lookup across it rebuilt a point 2.35 % of the diagonal off the scan).
 /// Other gaps keep the nearest crossing; returns how many were filled from a neighbour.
-fn fill_gaps(atlas: &Atlas, base: &Base, mode: NormalMode, dense: &DenseData, bvh: &Bvh, texels: Vec<(f32, [f32; 3], u8)>) -> (Vec<(f32, [f32; 3], u8)>, usize) {
+fn fill_gaps(atlas: &Atlas, base: &Base, mode: NormalMode, dense: &DenseData, topo: &Topology, bvh: &Bvh, texels: Vec<(f32, [f32; 3], u8)>) -> (Vec<(f32, [f32; 3], u8)>, usize) {
     let n = atlas.size as i64;
     let face_of = |x: i64, y: i64| atlas.texel_any(x as u32, y as u32).map(|t| t.0);
     let edges: f64 = dense.faces.iter().map(|f| (0..3).map(|k| dense.pos[f[k] as usize].distance(dense.pos[f[(k + 1) % 3] as usize])).sum::<f64>()).sum();
     let mean_edge = edges / (3 * dense.faces.len()).max(1) as f64;
     let tolerance = GAP_FILL_TOLERANCE_EDGES * mean_edge;
-    let rim = rim_faces(&dense.faces);
     // (texel, its d, SOURCE_GAP: filled from a neighbour, or SOURCE_NONE: over a hole)
     let filled: Vec<(usize, f32, u8)> = (0..texels.len())
         .into_par_iter()
@@ -285,7 +286,7 @@ fn fill_gaps(atlas: &Atlas, base: &Base, mode: NormalMode, dense: &DenseData, bv
                 return Some((i, d, SOURCE_GAP));
             }
             bvh.near(&dense.pos, &dense.faces, p, GAP_HOLE_SEARCH_EDGES * mean_edge, near);
-            near.first().is_some_and(|&(_, g)| rim[g as usize]).then_some((i, f32::NAN, SOURCE_NONE))
+            near.first().is_some_and(|&(_, g)| topo.face_on_boundary(g)).then_some((i, f32::NAN, SOURCE_NONE))
         })
         .flatten()
         .collect();
@@ -296,19 +297,6 @@ fn fill_gaps(atlas: &Atlas, base: &Base, mode: NormalMode, dense: &DenseData, bv
         texels[i].2 = source;
     }
     (texels, count)
-}
-
-/// Per dense face, whether it has an edge on the scan's boundary (an edge of one face only).
-fn rim_faces(faces: &[[u32; 3]]) -> Vec<bool> {
-    let mut edges: Vec<(u32, u32, u32)> = faces.iter().enumerate().flat_map(|(f, t)| (0..3).map(move |k| (t[k].min(t[(k + 1) % 3]), t[k].max(t[(k + 1) % 3]), f as u32))).collect();
-    edges.sort_unstable();
-    let mut rim = vec![false; faces.len()];
-    for run in edges.chunk_by(|a, b| (a.0, a.1) == (b.0, b.1)) {
-        if let [(_, _, f)] = run {
-            rim[*f as usize] = true;
-        }
-    }
-    rim
 }
 
 /// Where a ring search stops: at the end of the first ring that holds an accepted texel, or
@@ -594,25 +582,4 @@ fn read_exr(bytes: &[u8]) -> Result<(usize, Vec<f32>), Result<Kind, String>> {
         return Err(Err("expected a square one-channel EXR".into()));
     }
     Ok((size.0, layer.channel_data.list[0].sample_data.values_as_f32().collect()))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::rim_faces;
-
-    #[test]
-    fn rim_faces_are_those_with_an_edge_of_one_face() {
-        // A tetrahedron is closed: no rim. Without its bottom face (0 2 1) the three faces
-        // around the hole each have one edge of one face.
-        //        3
-        //       /|\
-        //      0-+-2
-        //       \|/
-        //        1
-        let tet = [[0, 1, 3], [1, 2, 3], [2, 0, 3], [0, 2, 1]];
-        assert_eq!(rim_faces(&tet), vec![false; 4]);
-        assert_eq!(rim_faces(&tet[..3]), vec![true; 3]);
-        // A strip of two: both on the rim.
-        assert_eq!(rim_faces(&[[0, 1, 2], [2, 1, 3]]), vec![true, true]);
-    }
 }
