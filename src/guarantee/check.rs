@@ -306,14 +306,15 @@ fn crossing_on_edge_shell(t1: &FaceInfo, m0: Map, k: usize, x0: DVec3, x1: DVec3
     let mut inside: Option<(f64, f64, f64)> = None;
     let mut count = 0;
     for u in us.into_iter().filter(|u| u.is_finite()) {
+        // p + d·n = t·dx, crossed with dx and with n.
         let (p, n) = (a + u * b, c + u * dn);
-        let (nx, xn) = (n.cross(dx), dx.cross(n));
-        let (nn, xx) = (nx.length_squared(), xn.length_squared());
-        if !(nn > 0.0 && xx > 0.0) {
+        let nx = n.cross(dx);
+        let nn = nx.length_squared();
+        if !(nn > 0.0) {
             return None;
         }
         let d = -p.cross(dx).dot(nx) / nn;
-        let t = p.cross(n).dot(xn) / xx;
+        let t = -p.cross(n).dot(nx) / nn;
         if t > 0.0 && t < 1.0 && d.abs() <= 2.0 * dmax {
             count += 1;
             inside = Some((u, d, t));
@@ -674,8 +675,8 @@ fn polygon_positive_in(pts: &[DVec2], q: &mut Vec<DVec2>) -> bool {
 /// loop of positive signed area in an intrinsic chart of the base, and which chart decided it.
 /// `None`: no chart holds the loop (its consecutive samples' faces neither share an edge nor lie
 /// in one star); the caller decides.
-pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample], stars: &mut StarCache) -> Option<(bool, Chart)> {
-    let StarCache { index, faces, cands, pts, polar, th, q } = stars;
+pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample], charts: &mut ChartScratch) -> Option<(bool, Chart)> {
+    let ChartScratch { index, faces, cands, pts, polar, th, laid, q } = charts;
     faces.clear();
     faces.extend(lp.iter().map(|s| s.m.face));
     // Mostly one label (a loop inside one base face): no sort.
@@ -717,8 +718,8 @@ pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample], stars: &mut StarCach
     if faces.len() == 2 {
         let (ta, tb) = (ctx.face_info(faces[0]).verts, ctx.face_info(faces[1]).verts);
         if ta.iter().filter(|v| tb.contains(v)).count() == 2 {
-            if let Some(pts) = chain_chart(ctx, lp) {
-                return Some((polygon_positive_in(&pts, q), Chart::Pair));
+            if chain_chart(ctx, lp, laid, pts).is_some() {
+                return Some((polygon_positive_in(pts, q), Chart::Pair));
             }
         }
     }
@@ -752,7 +753,7 @@ pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample], stars: &mut StarCach
             }
         }
     }
-    chain_chart(ctx, lp).map(|pts| (polygon_positive_in(&pts, q), Chart::Chain))
+    chain_chart(ctx, lp, laid, pts).map(|()| (polygon_positive_in(pts, q), Chart::Chain))
 }
 
 /// The base face holding the supports of all of `lp`'s samples (the vertices carrying them),
@@ -850,7 +851,7 @@ struct Wedge {
 
 /// The fan of a base vertex, laid out for [`star_chart`]: its wedges in fan order with their
 /// angles summed, and whether the fan closes. The same for every loop around the vertex within
-/// one check, so [`StarCache`] keeps it.
+/// one check, so [`ChartScratch`] keeps it.
 struct Star {
     wedges: Vec<Wedge>,
     total: f64,
@@ -878,17 +879,19 @@ fn star_of<C: MapContext>(ctx: &C, w: u32) -> Option<Star> {
     (total > 0.0).then_some(Star { wedges, total, closed })
 }
 
-/// The stars laid out so far, by base vertex. Valid for one [`MapContext`] (one candidate's
-/// check, one validation): a scratch that holds it is never handed to another context.
+/// What [`loop_positive`] keeps from loop to loop: the stars laid out so far, by base vertex —
+/// valid for one [`MapContext`] (one candidate's check, one validation): a scratch that holds
+/// it is never handed to another context — and its buffers (no allocation per dense face).
 #[derive(Default)]
-pub struct StarCache {
+pub struct ChartScratch {
     index: rustc_hash::FxHashMap<u32, Option<Star>>,
-    /// Buffers of [`loop_positive`], kept from loop to loop (no allocation per dense face).
     faces: Vec<u32>,
     cands: Vec<u32>,
     pts: Vec<DVec2>,
     polar: Vec<(f64, f64)>,
     th: Vec<f64>,
+    /// The triangles a pair or chain chart has laid out.
+    laid: Vec<([u32; 3], [DVec2; 3])>,
     q: Vec<DVec2>,
 }
 
@@ -968,8 +971,8 @@ fn star_chart<C: MapContext>(
 /// The loop in a chain of base triangles unfolded isometrically along it: the first sample's
 /// triangle is laid out in its plane; each next triangle that shares an edge with one already
 /// laid out is unfolded about that edge. `None` when a step shares no edge.
-fn chain_chart<C: MapContext>(ctx: &C, lp: &[Sample]) -> Option<Vec<DVec2>> {
-    let mut laid: Vec<([u32; 3], [DVec2; 3])> = Vec::new();
+fn chain_chart<C: MapContext>(ctx: &C, lp: &[Sample], laid: &mut Vec<([u32; 3], [DVec2; 3])>, pts: &mut Vec<DVec2>) -> Option<()> {
+    laid.clear();
     let first = ctx.face_info(lp[0].m.face);
     let (p0, p1, p2) = (first.pos[0], first.pos[1], first.pos[2]);
     let ex = (p1 - p0).normalize_or_zero();
@@ -977,24 +980,24 @@ fn chain_chart<C: MapContext>(ctx: &C, lp: &[Sample]) -> Option<Vec<DVec2>> {
     let ey = n.cross(ex);
     let flat = |p: DVec3| DVec2::new((p - p0).dot(ex), (p - p0).dot(ey));
     laid.push((first.verts, [flat(p0), flat(p1), flat(p2)]));
-    let mut pts = Vec::with_capacity(lp.len());
+    pts.clear();
     for s in lp {
         let here = laid.iter().rev().find_map(|(t, q)| on_face(&s.verts, &s.m.bary, t).map(|b| (*q, b)));
         let (q, b) = match here {
             Some(x) => x,
             None => {
                 let info = ctx.face_info(s.m.face);
-                if unfold_onto(&laid, &info).is_none() {
-                    unfold_around(ctx, &mut laid, &info)?;
+                if unfold_onto(laid, &info).is_none() {
+                    unfold_around(ctx, laid, &info)?;
                 }
-                let q = unfold_onto(&laid, &info)?;
+                let q = unfold_onto(laid, &info)?;
                 laid.push((info.verts, q));
                 (q, s.m.bary)
             }
         };
         pts.push(q[0] * b[0] + q[1] * b[1] + q[2] * b[2]);
     }
-    Some(pts)
+    Some(())
 }
 
 /// Lays out the faces between the last laid-out face sharing a vertex w with `target` and
@@ -1288,7 +1291,7 @@ pub struct CheckScratch {
     edge: Vec<Sample>,
     lp: Vec<Sample>,
     /// Stars laid out for orientation charts: a scratch serves one context only.
-    stars: StarCache,
+    charts: ChartScratch,
 }
 
 impl CheckScratch {
@@ -1334,7 +1337,7 @@ pub fn check_face<C: MapContext>(
     }
     let snap = SNAP_REL * (0..3).map(|k| dense.pos[fv[k] as usize].distance(dense.pos[fv[(k + 1) % 3] as usize])).fold(0.0, f64::max);
     snap_to_vertices(ctx, &mut sc.lp, snap);
-    let mut verdict = loop_positive(ctx, &sc.lp, &mut sc.stars);
+    let mut verdict = loop_positive(ctx, &sc.lp, &mut sc.charts);
     // A negative verdict is confirmed on finer loops: chords between coarse samples can cross a
     // finely sampled neighbouring edge where the image is a thin spike; a true flip stays.
     for &depth in &REFINE_DEPTHS {
@@ -1345,7 +1348,7 @@ pub fn check_face<C: MapContext>(
             return FaceCheck::Torn;
         }
         snap_to_vertices(ctx, &mut sc.lp, snap);
-        verdict = loop_positive(ctx, &sc.lp, &mut sc.stars);
+        verdict = loop_positive(ctx, &sc.lp, &mut sc.charts);
     }
     let positive = match verdict {
         Some((pos, chart)) => {
@@ -1913,10 +1916,10 @@ mod tests {
         faces.sort_unstable();
         faces.dedup();
         assert_eq!(faces, [0, 3], "{lp:?}");
-        let mut stars = StarCache::default();
-        assert_eq!(loop_positive(&ctx, &lp, &mut stars), Some((true, Chart::Pair)));
+        let mut charts = ChartScratch::default();
+        assert_eq!(loop_positive(&ctx, &lp, &mut charts), Some((true, Chart::Pair)));
         let rev: Vec<Sample> = lp.iter().rev().copied().collect();
-        assert_eq!(loop_positive(&ctx, &rev, &mut stars), Some((false, Chart::Pair)));
+        assert_eq!(loop_positive(&ctx, &rev, &mut charts), Some((false, Chart::Pair)));
         let star = star_of(&ctx, 4).unwrap();
         let (mut polar, mut th, mut out) = (Vec::new(), Vec::new(), Vec::new());
         for (l, want) in [(&lp, true), (&rev, false)] {
