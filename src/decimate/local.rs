@@ -12,7 +12,7 @@ use crate::decimate::{Candidate, NearRule, State};
 use crate::guarantee::chunks::{chunk_count, run_to_first_failure};
 use crate::guarantee::ids::IdIndex;
 use super::outcome::{Accepted, Outcome, Rejected};
-use crate::guarantee::{check_faces, find_primary, find_primary_near_first, find_primary_recording, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
+use crate::guarantee::{check_faces, find_primary, find_primary_capped, find_primary_near_first, find_primary_recording, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
 use crate::geometry::{beyond_box, face_cross, vertex_direction};
 use crate::decimate::stages::Stage;
 use std::time::Instant;
@@ -663,6 +663,10 @@ impl MapContext for CandidateContext<'_> {
         self.st.dmax
     }
     fn solve_point(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, scratch: &mut Scratch) -> Option<Map> {
+        self.solve_point_near(x, normals, fa, fb, f64::INFINITY, scratch)
+    }
+
+    fn solve_point_near(&self, x: DVec3, normals: &[DVec3], fa: u32, fb: u32, cap: f64, scratch: &mut Scratch) -> Option<Map> {
         let st = self.st;
         let tie = crate::guarantee::SAME_SOLUTION_REL * st.dmax;
         // The rule of one search over the union ([`crate::guarantee::preferred`]).
@@ -702,8 +706,16 @@ impl MapContext for CandidateContext<'_> {
                 }
             }
         }
-        let mut best =
-            pick(None, self.tris, find_primary_hinted(x, normals, self.tris, st.mode, st.dmax, true, false, &near[..n], scratch));
+        // Within the cap first: a hit there is the neighbourhood's primary, bit for bit; none
+        // there, the whole search (what it finds sets the reach and the record below).
+        let mut found = Found::None;
+        if cap < st.dmax {
+            found = find_primary_capped(x, normals, self.tris, st.mode, st.dmax, cap, &near[..n], scratch);
+        }
+        if !matches!(found, Found::Hit(..)) {
+            found = find_primary_hinted(x, normals, self.tris, st.mode, st.dmax, true, false, &near[..n], scratch);
+        }
+        let mut best = pick(None, self.tris, found);
         // Outside the neighbourhood, the same reach as a vertex's: a face holding a smaller |d|
         // lies within |d| of x. First the faces around the checked triangles, then, if the
         // reach leaves their box, a grid query of this point's own.
