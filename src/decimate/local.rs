@@ -323,6 +323,7 @@ impl State {
     /// corners (in the order of `ids`).
     fn prepare_faces(&self, ids: &[u32], keep: impl Fn(&[DVec3; 3]) -> bool) -> Tris {
         let mut t = Tris::default();
+        t.reserve(ids.len());
         for &f in ids {
             let info = self.face_info_current(f);
             if keep(&info.pos) {

@@ -179,6 +179,16 @@ impl Tris {
         self.pos.push(pos);
         self.dir.push(dir);
     }
+    /// Room for `n` more triangles (a set built at once grows its arrays once).
+    pub fn reserve(&mut self, n: usize) {
+        self.ids.reserve(n);
+        self.verts.reserve(n);
+        self.pos.reserve(n);
+        self.dir.reserve(n);
+        self.sphere.reserve(n);
+        self.slope.reserve(n);
+        self.lean.reserve(n);
+    }
     pub fn len(&self) -> usize {
         self.ids.len()
     }
