@@ -771,8 +771,8 @@ fn search_primary(
     // A hint hit already: every triangle in order lies within its reach, so all of them are
     // visited in any order unless a better hit turns up; the answer is the same in any order
     // ([`preferred`] is a total order), so they go as the scan met them, each passed over once
-    // beyond the best hit's reach so far — no sort. (The bunny: most searches; the heap and the
-    // selection took 6 % of a run.)
+    // beyond the best hit's reach so far — no sort (the sample under perf: the heap alone took
+    // 4.5 % of a run; without it 0.98× the time).
     if !strict && best.is_some() {
         for &Reverse((key, ti)) in order.iter() {
             if best.is_some_and(|(_, h)| from_order_key(key) > h.d.abs() + tie) {
