@@ -1338,10 +1338,11 @@ fn judged_maps<C: MapContext>(ctx: &C, dense: &DenseData, f: u32) -> Option<[Map
 }
 
 /// The loop of dense triangle `fv` (maps `m`, samples snapped within `snap` of a base vertex)
-/// where its walks are shared and it is the three vertices' samples alone, on one base face (most triangles: the three maps on one face, no
-/// edge with an inner sample): whether it is positive, decided as [`check_face`] decides it —
-/// the same samples snapped to the same vertices, the same barycentric chart and polygon test —
-/// without laying the loop out sample by sample. `None` elsewhere.
+/// where its walks are shared and it is the three vertices' samples alone, on one base face
+/// (most triangles: the three maps on one face, no edge with an inner sample): whether it is
+/// positive, decided as [`check_face`] decides it — the same samples snapped to the same
+/// vertices, the same barycentric chart and polygon test — without laying the loop out sample
+/// by sample. `None` elsewhere.
 fn one_face_loop_positive<C: MapContext>(ctx: &C, fv: [u32; 3], m: &[Map; 3], snap: f64, sc: &mut CheckScratch) -> Option<bool> {
     let table = sc.shared.as_deref()?;
     let f = m[0].face;
