@@ -1131,15 +1131,19 @@ pub const SNAP_REL: f64 = 1e-4;
 /// Moves the samples within `radius` of a vertex of their base face onto that vertex.
 fn snap_to_vertices<C: MapContext>(ctx: &C, lp: &mut [Sample], radius: f64) {
     for s in lp.iter_mut() {
-        let info = ctx.face_info(s.m.face);
-        for k in 0..3 {
-            if s.m.bary[k] < 1.0 && info.pos[k].distance(s.p) <= radius {
-                let mut b = [0.0; 3];
-                b[k] = 1.0;
-                s.m.bary = b;
-                s.p = info.pos[k];
-                break;
-            }
+        snap_point(&ctx.face_info(s.m.face).pos, &mut s.m.bary, &mut s.p, radius);
+    }
+}
+
+/// Moves the point `p` (barycentrics `bary` on the face with corners `pos`) onto the first
+/// corner within `radius` of it ([`snap_to_vertices`] for one sample).
+fn snap_point(pos: &[DVec3; 3], bary: &mut [f64; 3], p: &mut DVec3, radius: f64) {
+    for k in 0..3 {
+        if bary[k] < 1.0 && pos[k].distance(*p) <= radius {
+            *bary = [0.0; 3];
+            bary[k] = 1.0;
+            *p = pos[k];
+            return;
         }
     }
 }
@@ -1358,17 +1362,11 @@ fn one_face_loop_positive<C: MapContext>(ctx: &C, fv: [u32; 3], m: &[Map; 3], sn
     let info = ctx.face_info(f);
     let mut pts = [DVec2::ZERO; 3];
     for (k, mk) in m.iter().enumerate() {
-        // As `snap_to_vertices` moves a loop sample, then `on_face` on its own face.
+        // As `snap_to_vertices` moves the loop sample, then the chart of `loop_positive`.
         let mut bary = mk.bary;
-        let p = interpolate_direction(&info.pos, &bary);
-        for j in 0..3 {
-            if bary[j] < 1.0 && info.pos[j].distance(p) <= snap {
-                bary = [0.0; 3];
-                bary[j] = 1.0;
-                break;
-            }
-        }
-        let b = bary.map(|x| if x > geometry::BARY_EPS { x } else { 0.0 });
+        let mut p = interpolate_direction(&info.pos, &bary);
+        snap_point(&info.pos, &mut bary, &mut p, snap);
+        let b = on_face(&info.verts, &bary, &info.verts)?;
         pts[k] = DVec2::new(b[1], b[2]);
     }
     Some(polygon_positive_in(&pts, &mut sc.charts.q))
