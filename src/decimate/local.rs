@@ -101,6 +101,26 @@ impl State {
         let nb = self.build_neighbourhood(c, p, tris);
         let t = self.clock.lap(Stage::Neighbourhood, t);
         let (new_dirs, n_region) = nb?;
+        // A region vertex where an earlier placement or try found no solution goes first, alone:
+        // it mostly has none again, and then the placement fails as the whole solve would (the
+        // same search; not strict, where another vertex's ambiguity may come first in order).
+        if self.fail_hints && !self.strict {
+            let mut normals = Vec::new();
+            for &h in first.iter() {
+                let FailAt::Vertex(v) = h else { continue };
+                if c.dense.binary_search(&v).is_err() || self.dense.pinched[v as usize] {
+                    continue;
+                }
+                self.dense.vertex_normals(v, &mut normals);
+                let x = self.dense.pos[v as usize];
+                if find_primary_hinted(x, &normals, tris, self.mode, self.dmax, true, false, &[], scratch) == Found::None {
+                    self.clock.lap(Stage::Primaries, t);
+                    self.clock.unmapped_at_hint();
+                    note_failure(first, h);
+                    return Err(Reject::Unmapped);
+                }
+            }
+        }
         let (maps, _) = self.solve_region_vertices(
             c,
             tris,
@@ -120,22 +140,28 @@ impl State {
             },
         );
         self.clock.lap(Stage::Primaries, t);
-        let maps = maps?;
+        let maps = maps.map_err(|(reason, v)| {
+            if self.fail_hints && reason == Reject::Unmapped {
+                note_failure(first, FailAt::Vertex(v));
+            }
+            reason
+        })?;
         self.finish_placement(c, p, new_dirs, n_region, tris, maps, scratch, first)
     }
 
     /// The primary solutions of the region's dense vertices over the neighbourhood, in
     /// `c.order` (neighbours fail together), by `solve(state, index into c.dense, position,
-    /// pinched)`; fails at the first vertex without one (or, strict, with two). In contiguous
-    /// chunks of `c.order` over the threads, each with its own `init()` state (returned, for
-    /// counters); the failure reported is the first in `c.order` whatever the thread count.
+    /// pinched)`; fails at the first vertex without one (or, strict, with two), which it names
+    /// beside the reason. In contiguous chunks of `c.order` over the threads, each with its own
+    /// `init()` state (returned, for counters); the failure reported is the first in `c.order`
+    /// whatever the thread count.
     pub(crate) fn solve_region_vertices<S: Send>(
         &self,
         c: &Candidate,
         tris: &Tris,
         init: impl Fn() -> S + Sync,
         solve: impl Fn(&mut S, usize, DVec3, bool) -> Found + Sync,
-    ) -> (Result<Vec<Map>, Reject>, Vec<S>) {
+    ) -> (Result<Vec<Map>, (Reject, u32)>, Vec<S>) {
         let chunks = chunk_count(c.order.len(), PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD);
         let parts = run_to_first_failure(&c.order, chunks, |chunk, stop| {
             let mut state = init();
@@ -149,9 +175,9 @@ impl State {
                 let pinched = self.dense.pinched[v as usize];
                 let m = match solve(&mut state, i as usize, x, pinched) {
                     Found::Hit(t, h) => Map { face: tris.ids[t], bary: h.bary, d: h.d },
-                    Found::Ambiguous => return Err((Reject::Ambiguous, state)),
+                    Found::Ambiguous => return Err((Reject::Ambiguous, v, state)),
                     Found::None if pinched => self.nearest_fallback(x, tris),
-                    Found::None => return Err((Reject::Unmapped, state)),
+                    Found::None => return Err((Reject::Unmapped, v, state)),
                 };
                 out.push(m);
             }
@@ -173,10 +199,10 @@ impl State {
                     }
                     states.push(state);
                 }
-                Err((reason, state)) => {
+                Err((reason, v, state)) => {
                     states.push(state);
                     if verdict.is_ok() {
-                        verdict = Err(reason);
+                        verdict = Err((reason, v));
                     }
                 }
             }
@@ -257,9 +283,7 @@ impl State {
         let mut read_faces = out.reads;
         if let Err((reason, at)) = r {
             if self.fail_hints {
-                first.retain(|&h| h != at);
-                first.insert(0, at);
-                first.truncate(FAIL_HINTS);
+                note_failure(first, at);
             }
             return Err(reason);
         }
@@ -522,6 +546,13 @@ const OUTER_REACH: f64 = 2.0;
 /// on); measured on the shipped sample: 840 k such points, the grid giving 425 faces each on
 /// average, about one of them within a sixteenth of dmax, and 222 points needing them all.
 const FAR_FIRST_REACH_REL: f64 = 1.0 / 16.0;
+
+/// Puts `at` first among where a collapse's tries failed (once; at most [`FAIL_HINTS`] kept).
+fn note_failure(first: &mut Vec<FailAt>, at: FailAt) {
+    first.retain(|&h| h != at);
+    first.insert(0, at);
+    first.truncate(FAIL_HINTS);
+}
 
 /// Fewest region vertices in one parallel chunk of [`State::solve_region_vertices`].
 /// Why: a primary search costs a few µs; 64 of them dwarf a chunk's scratch and its join.

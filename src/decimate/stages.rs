@@ -50,6 +50,8 @@ pub struct StageClock {
     edges: AtomicU64,
     /// What the continuity walks did (added once per placement).
     work: Mutex<PointWork>,
+    /// Placements failed at a vertex an earlier try found unmapped, tested before the rest.
+    unmapped_at_hint: AtomicU64,
 }
 
 impl StageClock {
@@ -84,6 +86,11 @@ impl StageClock {
         self.work.lock().unwrap_or_else(|e| e.into_inner()).add(w);
     }
 
+    /// Counts a placement failed at an unmapped vertex tested first (see `unmapped_at_hint`).
+    pub fn unmapped_at_hint(&self) {
+        self.unmapped_at_hint.fetch_add(1, Ordering::Relaxed);
+    }
+
     /// Adds one failed placement's time by the reason it failed.
     pub fn failed(&self, reason: Reject, since: Instant) {
         let (n, ns) = &self.failed[reason as usize];
@@ -102,6 +109,7 @@ impl StageClock {
             faces_checked: self.faces.load(Ordering::Relaxed),
             edges_checked: self.edges.load(Ordering::Relaxed),
             work: *self.work.lock().unwrap_or_else(|e| e.into_inner()),
+            unmapped_at_hint: self.unmapped_at_hint.load(Ordering::Relaxed),
             failed_placements: REASONS
                 .iter()
                 .filter(|&&r| self.failed[r as usize].0.load(Ordering::Relaxed) > 0)
@@ -136,6 +144,10 @@ pub struct StageSummary {
     /// they solved — at exits from a base triangle and at bisection midpoints — of which
     /// how many searched the face grid beyond the candidate's outer faces.
     pub work: PointWork,
+    /// Of the placements failed as unmapped, those failed at a vertex where an earlier
+    /// placement or try of the same collapse found no solution, tested alone before the region's
+    /// other vertices (the same verdict, without solving the rest).
+    pub unmapped_at_hint: u64,
     /// Failed placements by reason: (reason, count, CPU seconds).
     pub failed_placements: Vec<(String, u64, f64)>,
 }

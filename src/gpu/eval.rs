@@ -442,6 +442,7 @@ impl Evaluator for GpuEvaluator {
                     let disagreements: u64 = states.iter().map(|s| s.2).sum();
                     let mut scratch = Scratch::default();
                     let r = solved
+                        .map_err(|(reason, _)| reason)
                         .and_then(|maps| state.finish_placement(c, prep.position, new_dirs, n_region, &tris, maps, &mut scratch, first))
                         .map(|acc| Accepted { placement: pi, ..acc });
                     (r, disagreements, t.elapsed().as_secs_f64())

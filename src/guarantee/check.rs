@@ -1440,6 +1440,8 @@ pub fn check_face<C: MapContext>(
 pub enum FailAt {
     Face(u32),
     Edge(u32, u32),
+    /// A dense vertex the neighbourhood gave no solution (the region's solve, before checks).
+    Vertex(u32),
 }
 
 /// The decimator's form of the check: the dense triangles `faces` (orientation and continuity)
@@ -1464,6 +1466,7 @@ pub fn check_faces<C: MapContext + Sync>(
     let listed = |h: &FailAt| match *h {
         FailAt::Face(f) => faces.binary_search(&f).is_ok(),
         FailAt::Edge(a, b) => edges.binary_search(&(a, b)).is_ok(),
+        FailAt::Vertex(_) => false,
     };
     let hinted: Vec<FailAt> = first.unwrap_or(&[]).iter().copied().filter(listed).collect();
     let check = |item: FailAt, sc: &mut CheckScratch, stats: &mut CheckStats| -> Result<(), (Reject, FailAt)> {
@@ -1477,6 +1480,7 @@ pub fn check_faces<C: MapContext + Sync>(
                 Some(j) if j > 0.0 => Err((Reject::Tear, item)),
                 _ => Ok(()),
             },
+            FailAt::Vertex(_) => Ok(()), // never listed: the region's solve tests those
         }
     };
     let mut sc = CheckScratch::default();
