@@ -101,25 +101,9 @@ impl State {
         let nb = self.build_neighbourhood(c, p, tris);
         let t = self.clock.lap(Stage::Neighbourhood, t);
         let (new_dirs, n_region) = nb?;
-        // A region vertex where an earlier placement or try found no solution goes first, alone:
-        // it mostly has none again, and then the placement fails as the whole solve would (the
-        // same search; not strict, where another vertex's ambiguity may come first in order).
-        if self.fail_hints && !self.strict {
-            let mut normals = Vec::new();
-            for &h in first.iter() {
-                let FailAt::Vertex(v) = h else { continue };
-                if c.dense.binary_search(&v).is_err() || self.dense.pinched[v as usize] {
-                    continue;
-                }
-                self.dense.vertex_normals(v, &mut normals);
-                let x = self.dense.pos[v as usize];
-                if find_primary_hinted(x, &normals, tris, self.mode, self.dmax, true, false, &[], scratch) == Found::None {
-                    self.clock.lap(Stage::Primaries, t);
-                    self.clock.unmapped_at_hint();
-                    note_failure(first, h);
-                    return Err(Reject::Unmapped);
-                }
-            }
+        if self.unmapped_at_hint(c, tris, first, scratch) {
+            self.clock.lap(Stage::Primaries, t);
+            return Err(Reject::Unmapped);
         }
         let (maps, _) = self.solve_region_vertices(
             c,
@@ -140,13 +124,44 @@ impl State {
             },
         );
         self.clock.lap(Stage::Primaries, t);
-        let maps = maps.map_err(|(reason, v)| {
-            if self.fail_hints && reason == Reject::Unmapped {
-                note_failure(first, FailAt::Vertex(v));
-            }
-            reason
-        })?;
+        let maps = maps.map_err(|failed| self.note_solve_failure(first, failed))?;
         self.finish_placement(c, p, new_dirs, n_region, tris, maps, scratch, first)
+    }
+
+    /// Whether a region vertex where an earlier placement or try of the collapse found no
+    /// solution (`FailAt::Vertex` in `first`) has none again: such a vertex goes first, alone,
+    /// and the placement then fails as the whole solve would (the same search), without solving
+    /// the rest; it is put first in `first` again. Not strict, where another vertex's ambiguity
+    /// may come first in order. Every evaluator asks this before the region's solve, so that
+    /// their fail memos agree.
+    pub(crate) fn unmapped_at_hint(&self, c: &Candidate, tris: &Tris, first: &mut Vec<FailAt>, scratch: &mut Scratch) -> bool {
+        if !self.fail_hints || self.strict {
+            return false;
+        }
+        let mut normals = Vec::new();
+        for &h in first.iter() {
+            let FailAt::Vertex(v) = h else { continue };
+            if c.dense.binary_search(&v).is_err() || self.dense.pinched[v as usize] {
+                continue;
+            }
+            self.dense.vertex_normals(v, &mut normals);
+            let x = self.dense.pos[v as usize];
+            if find_primary_hinted(x, &normals, tris, self.mode, self.dmax, true, false, &[], scratch) == Found::None {
+                self.clock.unmapped_at_hint();
+                note_failure(first, h);
+                return true;
+            }
+        }
+        false
+    }
+
+    /// Notes where the region's solve failed ([`State::solve_region_vertices`]'s error: an
+    /// unmapped vertex goes into the fail memo) and returns the reason.
+    pub(crate) fn note_solve_failure(&self, first: &mut Vec<FailAt>, (reason, v): (Reject, u32)) -> Reject {
+        if self.fail_hints && reason == Reject::Unmapped {
+            note_failure(first, FailAt::Vertex(v));
+        }
+        reason
     }
 
     /// The primary solutions of the region's dense vertices over the neighbourhood, in

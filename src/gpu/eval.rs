@@ -426,6 +426,11 @@ impl Evaluator for GpuEvaluator {
                         Ok(b) => b,
                         Err(r) => return (Err(r), 0, t.elapsed().as_secs_f64()),
                     };
+                    // As the CPU path: an unmapped vertex of an earlier try first, alone.
+                    let mut scratch = Scratch::default();
+                    if state.unmapped_at_hint(c, &tris, first, &mut scratch) {
+                        return (Err(Reject::Unmapped), 0, t.elapsed().as_secs_f64());
+                    }
                     let mine = &answers[prep.first_query..prep.first_query + c.dense.len()];
                     let (solved, states) = state.solve_region_vertices(
                         c,
@@ -440,9 +445,8 @@ impl Evaluator for GpuEvaluator {
                         },
                     );
                     let disagreements: u64 = states.iter().map(|s| s.2).sum();
-                    let mut scratch = Scratch::default();
                     let r = solved
-                        .map_err(|(reason, _)| reason)
+                        .map_err(|failed| state.note_solve_failure(first, failed))
                         .and_then(|maps| state.finish_placement(c, prep.position, new_dirs, n_region, &tris, maps, &mut scratch, first))
                         .map(|acc| Accepted { placement: pi, ..acc });
                     (r, disagreements, t.elapsed().as_secs_f64())
