@@ -156,9 +156,10 @@ impl State {
     }
 
     /// Notes where the region's solve failed ([`State::solve_region_vertices`]'s error: an
-    /// unmapped vertex goes into the fail memo) and returns the reason.
+    /// unmapped vertex goes into the fail memo, except in strict mode, which never reads it
+    /// back — see [`State::unmapped_at_hint`]) and returns the reason.
     pub(crate) fn note_solve_failure(&self, first: &mut Vec<FailAt>, (reason, v): (Reject, u32)) -> Reject {
-        if self.fail_hints && reason == Reject::Unmapped {
+        if self.fail_hints && !self.strict && reason == Reject::Unmapped {
             note_failure(first, FailAt::Vertex(v));
         }
         reason
