@@ -55,7 +55,7 @@ fn small_sample_decimates_validly_and_deterministically() {
 }
 
 /// Faces out of `dispdec sample --faces 3000 --seed 2` decimated with `--batch 1` (measured;
-/// the default batch of 16 gives 339 with 112 candidates deferred). Deterministic: a change
+/// the default batch of 16 gives 315 with 23 candidates deferred). Deterministic: a change
 /// that moves it changes which collapses pass (it was 262 before jumps at folds of the
 /// solution path counted as tears, 361 before near-ties of |d| went by the exact value, 359
 /// before the continuity walk judged a piece by its own face's stretch, split pieces at a

@@ -704,6 +704,9 @@ impl MapContext for CandidateContext<'_> {
         let mut s = Vec::new();
         self.st.topo.faces_around(v, &mut s, out);
     }
+    fn jump_depth(&self) -> u32 {
+        crate::guarantee::check::CANDIDATE_JUMP_DEPTH
+    }
     fn mode(&self) -> NormalMode {
         self.st.mode
     }

@@ -59,6 +59,16 @@ pub const MAX_DEPTH: u32 = 32;
 /// length, up to second-order terms; 2× leaves room for those and for curved image paths.
 pub const STRETCH_RATIO: f64 = 2.0;
 
+/// The decimator's candidate test takes a piece that its stretch still cannot explain at this
+/// depth (2^-16 of the dense edge) for a jump, without bisecting it on to [`MAX_DEPTH`]
+/// ([`MapContext::jump_depth`]).
+/// Why: a measured jump is 7–90 % of an edge and stays open at every depth, while a piece that
+/// converges only deeper (the focal surface's square root) is rare; calling it torn rejects a
+/// collapse, never accepts one, so the test stays at least as strict as SPEC §1. Halfway to
+/// MAX_DEPTH: the dragon took the same time at 9 (1.00× side by side), but 9 took the bunny's
+/// `--strict` base from 365 to 482 faces (12: 408; 16: 365).
+pub const CANDIDATE_JUMP_DEPTH: u32 = 16;
+
 /// At [`MAX_DEPTH`] a gap below this fraction of the dense edge's length has converged.
 /// Why: a continuous image with a square-root singularity (the focal surface) still moves
 /// ~1.5e-5 of an edge over 2^-32 of it; a jump stays at its full size.
@@ -90,6 +100,13 @@ pub trait MapContext {
     }
     fn mode(&self) -> NormalMode;
     fn dmax(&self) -> f64;
+    /// The depth from which a piece that its stretch cannot explain is a jump. SPEC §1 proves a
+    /// jump to [`MAX_DEPTH`] (the validator, the re-check); a context that stops sooner (the
+    /// decimator's candidate test, [`CANDIDATE_JUMP_DEPTH`]) only rejects more, and wants the
+    /// verdict, not the largest jump: its walk of an edge ends at the first jump.
+    fn jump_depth(&self) -> u32 {
+        MAX_DEPTH
+    }
 }
 
 /// Barycentric coordinates on face `target` of the point with `bary` on face `verts`, when the
@@ -429,7 +446,7 @@ pub fn edge_image<C: MapContext>(
     let sb = make_sample(ctx, mb, e);
     scratch.work.edge_walks += 1;
     out.push(sa);
-    let floors = Floors { same: SAME_POINT_REL * ctx.dmax(), jump: JUMP_FLOOR_REL * len, min_depth };
+    let floors = Floors { same: SAME_POINT_REL * ctx.dmax(), jump: JUMP_FLOOR_REL * len, min_depth, jump_depth: ctx.jump_depth().min(MAX_DEPTH) };
     let mut jump = 0.0f64;
     refine(ctx, xa, sa, xb, sb, e, normals, 0, floors, scratch, out, &mut jump);
     jump
@@ -441,6 +458,8 @@ struct Floors {
     jump: f64,
     /// Every piece is bisected at least this deep (finer loops for orientation).
     min_depth: u32,
+    /// [`MapContext::jump_depth`].
+    jump_depth: u32,
 }
 
 /// Appends the samples after `s0` up to and including `s1`, bisecting the piece as SPEC §1 says.
@@ -459,6 +478,10 @@ fn refine<C: MapContext>(
     out: &mut Vec<Sample>,
     jump: &mut f64,
 ) {
+    if *jump > 0.0 && floors.jump_depth < MAX_DEPTH {
+        out.push(s1); // the verdict is in: torn
+        return;
+    }
     let gap = s0.p.distance(s1.p);
     if gap <= floors.same && depth >= floors.min_depth {
         out.push(s1);
@@ -496,6 +519,11 @@ fn refine<C: MapContext>(
         }
     }
     if done && depth >= floors.min_depth {
+        out.push(s1);
+        return;
+    }
+    if depth >= floors.jump_depth && depth < MAX_DEPTH && !consistent {
+        *jump = jump.max(gap);
         out.push(s1);
         return;
     }
@@ -1674,12 +1702,14 @@ mod tests {
         base: Base,
         all: crate::guarantee::primary::Tris,
         solves: std::cell::Cell<usize>,
+        mode: NormalMode,
+        jump_depth: u32,
     }
 
     impl Counting {
         fn new(base: Base) -> Counting {
             let all = crate::validate::all_tris(&base);
-            Counting { base, all, solves: std::cell::Cell::new(0) }
+            Counting { base, all, solves: std::cell::Cell::new(0), mode: NormalMode::Interpolated, jump_depth: MAX_DEPTH }
         }
     }
 
@@ -1700,14 +1730,59 @@ mod tests {
         }
         fn solve_point(&self, x: DVec3, normals: &[DVec3], _: u32, _: u32, _: &mut Scratch) -> Option<Map> {
             self.solves.set(self.solves.get() + 1);
-            crate::validate::primary_exhaustive(&self.all, x, normals, NormalMode::Interpolated, 1.0, true)
+            crate::validate::primary_exhaustive(&self.all, x, normals, self.mode, 1.0, true)
         }
         fn mode(&self) -> NormalMode {
-            NormalMode::Interpolated
+            self.mode
         }
         fn dmax(&self) -> f64 {
             1.0
         }
+        fn jump_depth(&self) -> u32 {
+            self.jump_depth
+        }
+    }
+
+    #[test]
+    fn the_candidate_test_takes_a_jump_at_its_depth_where_the_validator_proves_it_to_the_end() {
+        // The overlapping shells of `overlapping_shells_make_the_projection_jump`: a flat dense
+        // edge at z = 0.6 across the crease, constant normals; the smallest |d| switches from
+        // T1's foot to T2's at x = 0, 0.6 apart on L.
+        //
+        //     z = 0.6     ●─────┼─────●        (dense edge, x = -0.2 .. 0.2)
+        //                  ↘    |    ↙
+        //              \  T1    |   T2  /
+        //                \______|______/      (base)
+        //
+        // SPEC §1's walk (the validator's, MAX_DEPTH) bisects the jump's piece to depth 32; the
+        // candidate test stops at CANDIDATE_JUMP_DEPTH with the same verdict and nearly the same
+        // gap. With interpolated directions the image is continuous, and both walks give the
+        // same samples.
+        let (pa, pb) = (DVec3::new(-0.2, 0.1, 0.6), DVec3::new(0.2, 0.1, 0.6));
+        let normals = [DVec3::Z];
+        let walk = |mode: NormalMode, jump_depth: u32| {
+            let mut ctx = Counting::new(valley());
+            ctx.mode = mode;
+            ctx.jump_depth = jump_depth;
+            let mut scratch = Scratch::default();
+            let ma = ctx.solve_point(pa, &normals, 0, 0, &mut scratch).unwrap();
+            let mb = ctx.solve_point(pb, &normals, 0, 0, &mut scratch).unwrap();
+            ctx.solves.set(0);
+            let mut out = Vec::new();
+            let jump = edge_image(&ctx, pa, ma, pb, mb, &normals, 0, &mut scratch, &mut out);
+            (jump, ctx.solves.get(), out.iter().map(|s| (s.m.face, s.p)).collect::<Vec<_>>())
+        };
+        let (full, full_solves, _) = walk(NormalMode::Constant, MAX_DEPTH);
+        let (early, early_solves, _) = walk(NormalMode::Constant, CANDIDATE_JUMP_DEPTH);
+        assert!((full - 0.6).abs() < 1e-6, "{full}");
+        // At depth 16 the piece is 0.4 / 65,536 long: its ends' feet lie 0.6 + O(1e-5) apart.
+        assert!((early - 0.6).abs() < 1e-4, "{early}");
+        assert!(full_solves >= MAX_DEPTH as usize, "{full_solves}");
+        assert!(early_solves <= CANDIDATE_JUMP_DEPTH as usize + 1, "{early_solves} solves (the validator's walk: {full_solves})");
+        let (j1, _, s1) = walk(NormalMode::Interpolated, MAX_DEPTH);
+        let (j2, _, s2) = walk(NormalMode::Interpolated, CANDIDATE_JUMP_DEPTH);
+        assert_eq!((j1, j2), (0.0, 0.0));
+        assert_eq!(s1, s2);
     }
 
     #[test]
