@@ -462,6 +462,14 @@ struct Floors {
     jump_depth: u32,
 }
 
+impl Floors {
+    /// Whether the walk ends at its first jump: a context that takes jumps before
+    /// [`MAX_DEPTH`] wants the verdict, not the largest jump ([`MapContext::jump_depth`]).
+    fn ends_at_first_jump(&self) -> bool {
+        self.jump_depth < MAX_DEPTH
+    }
+}
+
 /// Appends the samples after `s0` up to and including `s1`, bisecting the piece as SPEC §1 says.
 #[allow(clippy::too_many_arguments)]
 fn refine<C: MapContext>(
@@ -478,7 +486,7 @@ fn refine<C: MapContext>(
     out: &mut Vec<Sample>,
     jump: &mut f64,
 ) {
-    if *jump > 0.0 && floors.jump_depth < MAX_DEPTH {
+    if *jump > 0.0 && floors.ends_at_first_jump() {
         out.push(s1); // the verdict is in: torn
         return;
     }
