@@ -344,7 +344,7 @@ impl State {
         // Most of the grid's coarse cells lie beyond the box: only the faces whose spheres meet
         // it are prepared ([`Outer::within`]).
         let margin = outer_margin(self.dmax, lo, hi);
-        let within = self.prepare_faces(&ids, |p| sphere_meets_box(crate::geometry::triangle_sphere(p), lo, hi, margin));
+        let within = self.prepare_faces(&ids, |sphere| sphere_meets_box(sphere, lo, hi, margin));
         let mut index = IdIndex::default();
         index.build(&ids);
         Outer { within, ids, index, all: std::sync::OnceLock::new(), lo, hi }
@@ -361,13 +361,14 @@ impl State {
 
     /// The faces `ids` as they are now, prepared for searches, where `keep` accepts their
     /// corners (in the order of `ids`).
-    fn prepare_faces(&self, ids: &[u32], keep: impl Fn(&[DVec3; 3]) -> bool) -> Tris {
-        let mut t = Tris::default();
+    fn prepare_faces(&self, ids: &[u32], keep: impl Fn((DVec3, f64)) -> bool) -> Tris {
+        let mut t = spare_tris();
         t.reserve(ids.len());
         for &f in ids {
-            let info = self.face_info_current(f);
-            if keep(&info.pos) {
-                t.push(f, info.verts, info.pos, info.dir);
+            let b = self.bounds_of(f);
+            if keep(b.sphere) {
+                let info = self.face_info_current(f);
+                t.push_with(f, info.verts, info.pos, info.dir, &b);
             }
         }
         t.finish();
@@ -441,11 +442,9 @@ impl State {
         let reach = reach + self.round_move;
         let faces = self.faces_outside(c, tris, lo - DVec3::splat(reach), hi + DVec3::splat(reach));
         // Skip faces beyond every vertex's reach.
-        let far = self.prepare_faces(&faces, |p| {
-            let (ctr, r) = crate::geometry::triangle_sphere(p);
-            !(ctr.clamp(lo, hi).distance(ctr) - r > reach)
-        });
+        let far = self.prepare_faces(&faces, |(ctr, r)| !(ctr.clamp(lo, hi).distance(ctr) - r > reach));
         if far.is_empty() {
+            keep_spare(far);
             return;
         }
         reads.extend_from_slice(&far.ids);
@@ -465,6 +464,7 @@ impl State {
                 }
             }
         }
+        keep_spare(far);
     }
 
     /// Dense vertices associated outside the region whose primary solution moves onto it: a
@@ -514,7 +514,7 @@ impl State {
         cand.sort_unstable();
         let mut region = Tris::default();
         for t in 0..n_region {
-            region.push(tris.ids[t], tris.verts[t], tris.pos[t], tris.dir[t]);
+            region.push_from(tris, t);
         }
         region.finish();
         let dense = &self.dense;
@@ -600,6 +600,46 @@ struct Outer {
     hi: DVec3,
 }
 
+impl Drop for Outer {
+    fn drop(&mut self) {
+        keep_spare(std::mem::take(&mut self.within));
+        if let Some(all) = self.all.take() {
+            keep_spare(all);
+        }
+    }
+}
+
+/// How many emptied triangle sets a thread keeps for the next candidate's. Why: a candidate's
+/// outer and far sets run to hundreds of kB; fresh ones cost the allocator's page faults each
+/// time (kept: the horse 0.976× side by side), and a thread rarely holds more than three at once.
+const SPARE_TRIS: usize = 3;
+
+thread_local! {
+    static SPARE: std::cell::RefCell<Vec<Tris>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// An empty triangle set, with the room of one this thread used before where it kept one.
+fn spare_tris() -> Tris {
+    SPARE.with(|s| s.borrow_mut().pop()).unwrap_or_default()
+}
+
+/// Frees every thread's spare sets (at the end of a run).
+pub(crate) fn drop_spare_tris() {
+    rayon::broadcast(|_| SPARE.with(|s| s.borrow_mut().clear()));
+    SPARE.with(|s| s.borrow_mut().clear());
+}
+
+/// Keeps an emptied `t` for [`spare_tris`] (up to [`SPARE_TRIS`] a thread).
+fn keep_spare(mut t: Tris) {
+    t.clear();
+    SPARE.with(|s| {
+        let mut s = s.borrow_mut();
+        if s.len() < SPARE_TRIS {
+            s.push(t);
+        }
+    });
+}
+
 impl Outer {
     /// Whether the set holds face `f`.
     fn holds(&self, f: u32) -> bool {
@@ -610,7 +650,23 @@ impl Outer {
         if self.covers(x, reach) {
             return &self.within;
         }
-        self.all.get_or_init(|| st.prepare_faces(&self.ids, |_| true))
+        // Every face of the set, `within`'s copied (it holds a subsequence of `ids`).
+        self.all.get_or_init(|| {
+            let mut t = spare_tris();
+            t.reserve(self.ids.len());
+            let mut j = 0;
+            for &f in &self.ids {
+                if self.within.ids.get(j) == Some(&f) {
+                    t.push_from(&self.within, j);
+                    j += 1;
+                } else {
+                    let info = st.face_info_current(f);
+                    t.push_with(f, info.verts, info.pos, info.dir, &st.bounds_of(f));
+                }
+            }
+            t.finish();
+            t
+        })
     }
     /// Whether the cube of half-side `reach` around `x` lies inside the box.
     fn covers(&self, x: DVec3, reach: f64) -> bool {
@@ -806,6 +862,7 @@ impl MapContext for CandidateContext<'_> {
                 &mut buf.faces,
                 corners,
                 info,
+                |f, _| st.bounds_of(f),
                 st.mode,
                 st.dmax,
                 reach,

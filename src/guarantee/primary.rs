@@ -135,6 +135,25 @@ impl Reject {
     }
 }
 
+/// What the primary search derives from a triangle's corners and directions: its bounding
+/// sphere, [`shell_lower_bound`]'s slope and [`lean_lower_bound`]'s lean. A pure function of
+/// (pos, dir), so a copy kept per face while the face is unchanged is the same bits.
+#[derive(Clone, Copy, Debug)]
+pub struct TriBounds {
+    pub sphere: (DVec3, f64),
+    pub slope: (DVec3, f64, f64),
+    pub lean: Lean,
+}
+
+impl TriBounds {
+    pub fn new(pos: &[DVec3; 3], dir: &[DVec3; 3]) -> TriBounds {
+        let n = geometry::face_normal(pos[0], pos[1], pos[2]);
+        let nu = dir.iter().map(|d| d.dot(n).abs()).fold(0.0, f64::max);
+        let tau = dir.iter().map(|d| (*d - n * d.dot(n)).length()).fold(0.0, f64::max);
+        TriBounds { sphere: triangle_sphere(pos), slope: (n, nu, tau), lean: Lean::new(pos, dir, n) }
+    }
+}
+
 /// The triangles of a neighbourhood in flat arrays (the layout a GPU batch uses too).
 #[derive(Clone, Debug, Default)]
 pub struct Tris {
@@ -168,16 +187,23 @@ impl Tris {
         self.lookup.clear();
     }
     pub fn push(&mut self, id: u32, verts: [u32; 3], pos: [DVec3; 3], dir: [DVec3; 3]) {
+        self.push_with(id, verts, pos, dir, &TriBounds::new(&pos, &dir));
+    }
+    /// [`Tris::push`] with the triangle's bounds already derived (by [`TriBounds::new`] from
+    /// the same `pos` and `dir`: a state that keeps them per face copies instead of deriving).
+    pub fn push_with(&mut self, id: u32, verts: [u32; 3], pos: [DVec3; 3], dir: [DVec3; 3], b: &TriBounds) {
         self.ids.push(id);
         self.verts.push(verts);
-        self.sphere.push(triangle_sphere(&pos));
-        let n = geometry::face_normal(pos[0], pos[1], pos[2]);
-        let nu = dir.iter().map(|d| d.dot(n).abs()).fold(0.0, f64::max);
-        let tau = dir.iter().map(|d| (*d - n * d.dot(n)).length()).fold(0.0, f64::max);
-        self.slope.push((n, nu, tau));
-        self.lean.push(Lean::new(&pos, &dir, n));
+        self.sphere.push(b.sphere);
+        self.slope.push(b.slope);
+        self.lean.push(b.lean);
         self.pos.push(pos);
         self.dir.push(dir);
+    }
+    /// Copies triangle `t` of `from` (its row, bounds and all).
+    pub fn push_from(&mut self, from: &Tris, t: usize) {
+        let b = TriBounds { sphere: from.sphere[t], slope: from.slope[t], lean: from.lean[t] };
+        self.push_with(from.ids[t], from.verts[t], from.pos[t], from.dir[t], &b);
     }
     /// Room for `n` more triangles (a set built at once grows its arrays once).
     pub fn reserve(&mut self, n: usize) {
@@ -603,6 +629,7 @@ pub fn find_primary_near_first(
     faces: &mut Vec<u32>,
     corners: impl Fn(u32) -> [DVec3; 3],
     info: impl Fn(u32) -> Option<FaceInfo>,
+    bounds: impl Fn(u32, &FaceInfo) -> TriBounds,
     mode: NormalMode,
     dmax: f64,
     reach: f64,
@@ -652,7 +679,7 @@ pub fn find_primary_near_first(
     near.dedup_by_key(|&mut (f, _)| f);
     t.clear();
     for &(f, fi) in near.iter() {
-        t.push(f, fi.verts, fi.pos, fi.dir);
+        t.push_with(f, fi.verts, fi.pos, fi.dir, &bounds(f, &fi));
     }
     t.finish();
     let found = search(t, None, scratch);
@@ -666,7 +693,7 @@ pub fn find_primary_near_first(
     for &f in faces.iter() {
         let Some(fi) = info(f) else { continue };
         if triangle_distance(x, &fi.pos) <= reach {
-            t.push(f, fi.verts, fi.pos, fi.dir);
+            t.push_with(f, fi.verts, fi.pos, fi.dir, &bounds(f, &fi));
         }
     }
     t.finish();
@@ -1081,7 +1108,7 @@ mod tests {
                 _ => None,
             };
             list.clone_from(&listed);
-            let got = find_primary_near_first(x, &[], &mut list, corners, info, mode, dmax, reach, margin, first, hint, &mut buf, &mut near_buf, &mut one);
+            let got = find_primary_near_first(x, &[], &mut list, corners, info, |_, fi| super::TriBounds::new(&fi.pos, &fi.dir), mode, dmax, reach, margin, first, hint, &mut buf, &mut near_buf, &mut one);
             assert_eq!(got.map(|(f, h)| (f, h.d.to_bits(), h.bary.map(f64::to_bits))), want.map(|(f, h)| (f, h.d.to_bits(), h.bary.map(f64::to_bits))), "point {i}");
             if i % 8 == 7 {
                 let (mut a, mut b) = (one.take_reads(), two.take_reads());
