@@ -367,12 +367,17 @@ impl State {
         for &f in ids {
             let b = self.bounds_of(f);
             if keep(b.sphere) {
-                let info = self.face_info_current(f);
-                t.push_with(f, info.verts, info.pos, info.dir, &b);
+                self.push_face(&mut t, f, &b);
             }
         }
         t.finish();
         t
+    }
+
+    /// Appends live face `f` as it is now, with its bounds `b` ([`State::bounds_of`]).
+    fn push_face(&self, t: &mut Tris, f: u32, b: &crate::guarantee::TriBounds) {
+        let info = self.face_info_current(f);
+        t.push_with(f, info.verts, info.pos, info.dir, b);
     }
 
     /// (`--strict`) The paper's uniqueness, verified on the ring too: a vertex associated with
@@ -660,8 +665,7 @@ impl Outer {
                     t.push_from(&self.within, j);
                     j += 1;
                 } else {
-                    let info = st.face_info_current(f);
-                    t.push_with(f, info.verts, info.pos, info.dir, &st.bounds_of(f));
+                    st.push_face(&mut t, f, &st.bounds_of(f));
                 }
             }
             t.finish();
