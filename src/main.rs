@@ -149,6 +149,11 @@ enum Cmd {
         #[arg(long)]
         result: PathBuf,
     },
+    /// `--backend auto`'s probe for a hardware GPU adapter, run by dispdec in a process of its
+    /// own (so that the drivers it loads never stay resident in a run that chooses the CPU);
+    /// prints the answer as JSON.
+    #[command(hide = true)]
+    ProbeGpu,
     /// Decimate INPUT (OBJ or PLY, optionally .gz) into a base mesh.
     Decimate {
         input: PathBuf,
@@ -349,6 +354,16 @@ fn backend_of(backend: Backend) -> dispdec::app::run::Backend {
     }
 }
 
+/// `--backend auto` probes in a child process (this binary's `probe-gpu`), so that a run
+/// that chooses the CPU never holds the Vulkan drivers (lavapipe: ~50 MB resident); in this
+/// process where the binary cannot name itself.
+fn probe(say: &Say) -> dispdec::app::run::Probe {
+    match std::env::current_exe() {
+        Ok(exe) => dispdec::app::run::Probe::Child { exe, show_stderr: say.verbose && !say.quiet },
+        Err(_) => dispdec::app::run::Probe::InProcess,
+    }
+}
+
 /// What goes to stderr besides errors: the summary and warnings unless `--quiet`, the
 /// backend note only with `--verbose`.
 struct Say {
@@ -396,6 +411,7 @@ fn run(cli: Cli) -> Result<i32> {
         } => {
             let job = DecimateJob {
                 backend: backend_of(backend),
+                probe: probe(&say),
                 input,
                 output,
                 map,
@@ -476,6 +492,7 @@ fn run(cli: Cli) -> Result<i32> {
             let job = dispdec::app::run::ValidateJob {
                 exhaustive,
                 backend: backend_of(backend),
+                probe: probe(&say),
                 high,
                 base,
                 json,
@@ -618,6 +635,10 @@ fn run(cli: Cli) -> Result<i32> {
                 let text = serde_json::to_string_pretty(&report)?;
                 dispdec::mesh::write_atomic(&p, text.as_bytes())?;
             }
+            Ok(0)
+        }
+        Cmd::ProbeGpu => {
+            println!("{}", serde_json::to_string(&dispdec::app::run::ProbeAnswer::here())?);
             Ok(0)
         }
         Cmd::BenchRun { input, output, config, result } => {

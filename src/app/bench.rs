@@ -97,6 +97,7 @@ pub fn run_one(input: &Path, output: &Path, config: Config) -> RunOutcome {
         threads: Some(if config == Config::Cpu1 { 1 } else { 0 }),
         progress: false,
         backend: if config == Config::Gpu { Backend::Gpu } else { Backend::Cpu },
+        probe: Default::default(),
         preparation: Default::default(),
         repaired: None,
     };

@@ -28,10 +28,73 @@ pub struct DecimateJob {
     /// Show a progress bar (only drawn when stderr is a terminal).
     pub progress: bool,
     pub backend: Backend,
+    /// How `--backend auto` looks for a hardware adapter.
+    pub probe: Probe,
     /// Welding and repair of the scan before it is checked.
     pub preparation: Preparation,
     /// `--repaired FILE`: the scan as decimated (welded, repaired), as OBJ.
     pub repaired: Option<PathBuf>,
+}
+
+/// How `--backend auto` asks whether a hardware GPU adapter exists.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum Probe {
+    /// In this process: the Vulkan drivers it loads stay resident for the rest of the run
+    /// (Mesa's lavapipe: ~50 MB, as much as the whole decimation of the bunny).
+    #[default]
+    InProcess,
+    /// In a process of its own: `exe probe-gpu` (the `dispdec` binary's hidden command, which
+    /// prints [`ProbeAnswer`] as JSON); this process loads a driver only when it opens the GPU.
+    /// `show_stderr`: let what the loader and drivers print through (`--verbose`).
+    Child { exe: PathBuf, show_stderr: bool },
+}
+
+/// What `dispdec probe-gpu` prints: the best hardware adapter's name, `None` (only software
+/// adapters), or why the probe failed.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct ProbeAnswer {
+    pub hardware: Option<String>,
+    pub error: Option<String>,
+}
+
+impl ProbeAnswer {
+    /// The probe in this process (the body of `dispdec probe-gpu`).
+    pub fn here() -> ProbeAnswer {
+        match crate::gpu::Gpu::primary_hardware_adapter() {
+            Ok(hardware) => ProbeAnswer { hardware, error: None },
+            Err(e) => ProbeAnswer { hardware: None, error: Some(e.to_string()) },
+        }
+    }
+}
+
+impl Probe {
+    /// The best hardware adapter's name, `None` when there are only software ones.
+    fn hardware_adapter(&self) -> Result<Option<String>, String> {
+        let answer = match self {
+            Probe::InProcess => ProbeAnswer::here(),
+            Probe::Child { exe, show_stderr } => {
+                let failed = |why: String| format!("the GPU probe ({} probe-gpu) failed: {why}", exe.display());
+                let mut cmd = std::process::Command::new(exe);
+                if *show_stderr {
+                    cmd.arg("--verbose"); // the child then lets the loader's own lines through too
+                }
+                let out = cmd
+                    .arg("probe-gpu")
+                    .stdin(std::process::Stdio::null())
+                    .stderr(if *show_stderr { std::process::Stdio::inherit() } else { std::process::Stdio::null() })
+                    .output()
+                    .map_err(|e| failed(e.to_string()))?;
+                if !out.status.success() {
+                    return Err(failed(format!("it exited with {}", out.status)));
+                }
+                serde_json::from_slice(&out.stdout).map_err(|e| failed(format!("its answer is not a probe answer: {e}")))?
+            }
+        };
+        match answer.error {
+            Some(e) => Err(e),
+            None => Ok(answer.hardware),
+        }
+    }
 }
 
 /// Where batches are evaluated (`--backend`).
@@ -48,7 +111,7 @@ pub enum Backend {
 /// `auto` chose and why (the reports carry it; the command prints it only with `--verbose`).
 /// `auto` takes a hardware adapter only: on a software one (lavapipe, whose "GPU" is these same
 /// CPU cores) the CPU evaluator is faster; `--backend gpu` forces any adapter.
-pub fn open_backend(backend: Backend, dense: &crate::mesh::DenseData) -> Result<(Option<GpuEvaluator>, Option<String>), Error> {
+pub fn open_backend(backend: Backend, probe: &Probe, dense: &crate::mesh::DenseData) -> Result<(Option<GpuEvaluator>, Option<String>), Error> {
     let open = || -> Result<GpuEvaluator, crate::error::GpuError> {
         let gpu = crate::gpu::Gpu::open_primary()?;
         GpuEvaluator::new(gpu, dense)
@@ -57,8 +120,8 @@ pub fn open_backend(backend: Backend, dense: &crate::mesh::DenseData) -> Result<
     match backend {
         Backend::Cpu => Ok((None, None)),
         Backend::Gpu => Ok((Some(open()?), None)),
-        Backend::Auto => match crate::gpu::Gpu::primary_hardware_adapter() {
-            Err(e) => cpu(e.to_string()),
+        Backend::Auto => match probe.hardware_adapter() {
+            Err(e) => cpu(e),
             Ok(None) => cpu("no hardware adapter; software adapters (lavapipe) run on these same cores and are slower than the CPU evaluator (--backend gpu forces one)".into()),
             Ok(Some(_)) => match open() {
                 Ok(g) => {
@@ -186,7 +249,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
     dense.topology = Default::default();
     dense.positions = Vec::new();
     dense.faces = Vec::new();
-    let (gpu, backend_note) = open_backend(job.backend, &state.dense)?;
+    let (gpu, backend_note) = open_backend(job.backend, &job.probe, &state.dense)?;
     let t_init = Instant::now();
 
     let faces_in = state.dense.faces.len();
@@ -381,6 +444,8 @@ pub struct ValidateJob {
     pub flags: Flags,
     pub threads: Option<usize>,
     pub backend: Backend,
+    /// How `--backend auto` looks for a hardware adapter.
+    pub probe: Probe,
     /// Brute force: every dense point against every base triangle (cross-checks the fast path).
     pub exhaustive: bool,
 }
@@ -494,7 +559,7 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
     let Pair { base: loaded, high, normals, dmax, strict, warnings } = load_pair(&job.high, &job.base, &job.flags)?;
     let b = &loaded.base;
     let dense = mesh::DenseData::new(&high.positions, &high.faces);
-    let (gpu, backend_note) = open_backend(job.backend, &dense)?;
+    let (gpu, backend_note) = open_backend(job.backend, &job.probe, &dense)?;
     let check = crate::validate::CheckOptions {
         mode: normals,
         dmax,
