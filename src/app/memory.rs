@@ -29,3 +29,18 @@ pub fn peak_rss_mb() -> Option<f64> {
     let kb: f64 = l.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb * 1024.0 / 1e6)
 }
+
+/// Rounds of the decimation between two [`trim_heap`] calls.
+/// Why: a round frees its candidates' buffers, and what the arenas keep of them stays resident;
+/// trimmed every 16 rounds (~250 calls on the bunny, no time that a run shows) the bunny's
+/// peak on two threads was 34.2 and 34.0 MB, untrimmed 34.4 and 36.9 MB.
+pub const TRIM_EVERY_ROUNDS: u64 = 16;
+
+/// Hands the free pages of every heap arena back to the OS (glibc's `malloc_trim`).
+pub fn trim_heap() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only returns free memory to the OS; it is safe to call at any time.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}

@@ -269,7 +269,12 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         Some(g) => g,
         None => &cpu,
     };
+    let mut rounds = 0u64;
     state.run(evaluator, &job.options, |faces| {
+        rounds += 1;
+        if rounds % crate::app::memory::TRIM_EVERY_ROUNDS == 0 {
+            crate::app::memory::trim_heap();
+        }
         if let Some(pb) = &bar {
             pb.set_position((faces_in - faces) as u64);
             pb.set_message(format!("{faces} faces"));
@@ -279,10 +284,13 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         pb.finish_and_clear();
     }
     let t_dec = Instant::now();
+    state.release_queue();
     let recheck: Recheck = state.recheck();
     let t_check = Instant::now();
 
     let base = state.compact();
+    state.release_decimation();
+    crate::app::memory::trim_heap();
     // The final word: the independent global check, strict when the run was (SPEC §1).
     let mut check = crate::validate::CheckOptions::new(job.options.normals, state.dmax);
     check.strict = job.options.strict;

@@ -18,6 +18,7 @@ const REACH_BLOCK: usize = 4;
 const FACE_GRID_RESOLUTION: f64 = 32.0;
 
 /// The cell layout shared by both grids.
+#[derive(Default)]
 struct Frame {
     lo: DVec3,
     cell: f64,
@@ -59,6 +60,7 @@ impl Frame {
 
 /// A static grid over the dense vertex positions (CSR cells), to find the vertices near a
 /// changed region whatever face they are associated with.
+#[derive(Default)]
 pub struct DenseGrid {
     frame: Frame,
     start: Vec<u32>,
@@ -154,6 +156,7 @@ impl DenseGrid {
 
 /// A uniform grid over the base faces' bounding boxes, updated as faces change, to find the
 /// faces outside a candidate's neighbourhood that could hold a smaller solution.
+#[derive(Default)]
 pub struct FaceGrid {
     frame: Frame,
     cells: Vec<Vec<u32>>,

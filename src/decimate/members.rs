@@ -14,6 +14,7 @@
 /// No vertex (end of a list) or no list.
 const NONE: u32 = u32::MAX;
 
+#[derive(Default)]
 pub struct FaceMembers {
     head: Vec<u32>,
     tail: Vec<u32>,

@@ -13,63 +13,78 @@ impl State {
     /// every dense triangle's orientation and every dense edge's continuity are checked.
     pub fn recheck(&self) -> Recheck {
         let nf = self.topo.num_faces_total() as u32;
-        let per_face: Vec<Vec<(u32, Option<Map>, bool)>> = (0..nf)
-            .into_par_iter()
-            .map(|f| {
-                if !self.topo.face_alive(f) || self.face_dense.is_empty(f) {
-                    return Vec::new();
-                }
-                let mut tris = Tris::default();
-                self.two_ring_tris(f, &mut tris);
-                let mut scratch = Scratch::default();
-                let mut normals = Vec::new();
-                let dense = &self.dense;
-                self.face_dense
-                    .iter(f)
-                    .map(|v| {
-                        dense.vertex_normals(v, &mut normals);
-                        let pinched = self.dense.pinched[v as usize];
-                        let x = self.dense.pos[v as usize];
-                        let r = match find_primary(x, &normals, &tris, self.mode, self.dmax, !pinched, false, &mut scratch) {
-                            Found::Hit(t, h) => Some(Map { face: tris.ids[t], bary: h.bary, d: h.d }),
-                            _ => None,
-                        };
-                        // The paper's uniqueness, reported (over this 2-ring) in strict mode.
-                        let ambiguous = self.strict
-                            && !pinched
-                            && find_primary(x, &normals, &tris, self.mode, self.dmax, true, true, &mut scratch) == Found::Ambiguous;
-                        (v, r, ambiguous)
-                    })
-                    .collect()
-            })
-            .collect();
         let mut maps: Vec<Option<Map>> = vec![None; self.dense.pos.len()];
         let mut unmapped = Vec::new();
         let mut ambiguous = 0;
-        for (v, m, amb) in per_face.into_iter().flatten() {
-            if m.is_none() && !self.dense.pinched[v as usize] {
-                unmapped.push(v);
+        // Base faces a slice at a time, so that only one slice's solutions wait to be written.
+        let faces: Vec<u32> = (0..nf).filter(|&f| self.topo.face_alive(f) && !self.face_dense.is_empty(f)).collect();
+        for slice in faces.chunks(RECHECK_SLICE_FACES) {
+            let per_face: Vec<Vec<(u32, Option<Map>, bool)>> = slice
+                .par_iter()
+                .map(|&f| {
+                    let mut tris = Tris::default();
+                    self.two_ring_tris(f, &mut tris);
+                    let mut scratch = Scratch::default();
+                    let mut normals = Vec::new();
+                    let dense = &self.dense;
+                    self.face_dense
+                        .iter(f)
+                        .map(|v| {
+                            dense.vertex_normals(v, &mut normals);
+                            let pinched = self.dense.pinched[v as usize];
+                            let x = self.dense.pos[v as usize];
+                            let r = match find_primary(x, &normals, &tris, self.mode, self.dmax, !pinched, false, &mut scratch) {
+                                Found::Hit(t, h) => Some(Map { face: tris.ids[t], bary: h.bary, d: h.d }),
+                                _ => None,
+                            };
+                            // The paper's uniqueness, reported (over this 2-ring) in strict mode.
+                            let ambiguous = self.strict
+                                && !pinched
+                                && find_primary(x, &normals, &tris, self.mode, self.dmax, true, true, &mut scratch) == Found::Ambiguous;
+                            (v, r, ambiguous)
+                        })
+                        .collect()
+                })
+                .collect();
+            for (v, m, amb) in per_face.into_iter().flatten() {
+                if m.is_none() && !self.dense.pinched[v as usize] {
+                    unmapped.push(v);
+                }
+                ambiguous += amb as usize;
+                maps[v as usize] = m;
             }
-            ambiguous += amb as usize;
-            maps[v as usize] = m;
         }
         unmapped.sort_unstable();
         let ctx = GlobalContext { st: self, maps: &maps };
         let dense = &self.dense;
-        let results: Vec<(u32, FaceCheck, CheckStats)> = (0..self.dense.faces.len() as u32)
+        // Summed as the threads go (integer counts and a maximum: the same in any order), with
+        // only the failing triangles listed: one result per dense triangle would hold 5 MB on
+        // the bunny, the run's peak.
+        let (checks, mut flipped, mut torn) = (0..self.dense.faces.len() as u32)
             .into_par_iter()
-            .map_init(CheckScratch::default, |sc, f| {
-                let mut stats = CheckStats::default();
-                let r = check_face(&ctx, dense, f, false, sc, &mut stats);
-                (f, r, stats)
-            })
-            .collect();
-        let mut checks = CheckStats::default();
-        for r in &results {
-            checks.add(&r.2);
-        }
-        let flipped = results.iter().filter(|r| r.1 == FaceCheck::Flipped).map(|r| r.0).collect();
-        let torn = results.iter().filter(|r| r.1 == FaceCheck::Torn).map(|r| r.0).collect();
+            .fold(
+                || (CheckStats::default(), Vec::new(), Vec::new(), CheckScratch::default()),
+                |(mut stats, mut flipped, mut torn, mut sc), f| {
+                    match check_face(&ctx, dense, f, false, &mut sc, &mut stats) {
+                        FaceCheck::Flipped => flipped.push(f),
+                        FaceCheck::Torn => torn.push(f),
+                        FaceCheck::Fine | FaceCheck::Skipped => {}
+                    }
+                    (stats, flipped, torn, sc)
+                },
+            )
+            .map(|(stats, flipped, torn, _)| (stats, flipped, torn))
+            .reduce(
+                || (CheckStats::default(), Vec::new(), Vec::new()),
+                |(mut s, mut fa, mut ta), (t, fb, tb)| {
+                    s.add(&t);
+                    fa.extend(fb);
+                    ta.extend(tb);
+                    (s, fa, ta)
+                },
+            );
+        flipped.sort_unstable();
+        torn.sort_unstable();
         let max_abs_d = maps.iter().flatten().map(|m| m.d.abs()).fold(0.0, f64::max);
         Recheck {
             unmapped,
@@ -83,6 +98,11 @@ impl State {
     }
 
 }
+
+/// Base faces whose vertices [`State::recheck`] solves before it writes their maps.
+/// Why: bounds what waits to be written (~56 bytes a vertex) while leaving each slice hundreds
+/// of faces to share among the threads.
+const RECHECK_SLICE_FACES: usize = 1024;
 
 /// Result of [`State::recheck`].
 #[derive(Clone, Debug, serde::Serialize)]
