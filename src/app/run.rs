@@ -946,3 +946,32 @@ pub fn render(meshes: &[PathBuf], out: &std::path::Path, view: crate::gpu::rende
     write_atomic(out, &crate::gpu::render::png_rgba(w, h, &rgba))?;
     Ok(gpu.describe())
 }
+
+#[cfg(all(test, unix))]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_probe_that_cannot_answer_leaves_auto_on_the_cpu_saying_why() {
+        // A probe process that is missing, fails, or prints something else is no hardware
+        // adapter: `--backend auto` goes on with the CPU and its note says what went wrong
+        // (before the probe left the process, a driver that crashed took dispdec with it).
+        let dense = crate::mesh::DenseData::new(&[], &[]);
+        for (exe, why) in [("/nonexistent/dispdec", "failed"), ("/bin/false", "exited with"), ("/bin/echo", "not a probe answer")] {
+            let probe = Probe::Child { exe: PathBuf::from(exe), show_stderr: false };
+            let e = probe.hardware_adapter().unwrap_err();
+            assert!(e.contains("GPU probe") && e.contains(why), "{exe}: {e}");
+            let (gpu, note) = open_backend(Backend::Auto, &probe, &dense).unwrap();
+            assert!(gpu.is_none(), "{exe}");
+            assert!(note.unwrap().starts_with("--backend auto: using the CPU: the GPU probe"), "{exe}");
+        }
+    }
+
+    #[test]
+    fn a_probe_answer_reads_back_as_written() {
+        for a in [ProbeAnswer { hardware: Some("NVIDIA H100".into()), error: None }, ProbeAnswer { hardware: None, error: None }] {
+            let text = serde_json::to_string(&a).unwrap();
+            assert_eq!(serde_json::from_str::<ProbeAnswer>(&text).unwrap(), a);
+        }
+    }
+}
