@@ -18,6 +18,7 @@ use crate::decimate::stages::Stage;
 use std::time::Instant;
 use crate::topology::{face_of, INVALID};
 use glam::DVec3;
+use rayon::prelude::*;
 
 impl State {
     /// Builds the neighbourhood of a candidate after collapse with `placement`: region (less
@@ -453,21 +454,31 @@ impl State {
             return;
         }
         reads.extend_from_slice(&far.ids);
-        let dense = &self.dense;
-        let mut normals = Vec::new();
         let tie = crate::guarantee::SAME_SOLUTION_REL * self.dmax;
-        for (i, &v) in c.dense.iter().enumerate() {
-            let cur = maps[i];
-            if self.dense.pinched[v as usize] || cur.d == 0.0 {
-                continue;
-            }
-            let x = self.dense.pos[v as usize];
-            dense.vertex_normals(v, &mut normals);
-            if let Found::Hit(t, h) = find_primary(x, &normals, &far, self.mode, cur.d.abs() + tie, true, false, scratch) {
-                if crate::guarantee::preferred(h.d.abs(), far.ids[t], cur.d.abs(), cur.face) {
-                    maps[i] = Map { face: far.ids[t], bary: h.bary, d: h.d };
+        // Each vertex on its own (its map is its own result): in contiguous chunks over the
+        // threads, so that a large region's far pass is not one thread's while the round waits.
+        let solve = |maps: &mut [Map], verts: &[u32], scratch: &mut Scratch| {
+            let mut normals = Vec::new();
+            for (m, &v) in maps.iter_mut().zip(verts) {
+                let cur = *m;
+                if self.dense.pinched[v as usize] || cur.d == 0.0 {
+                    continue;
+                }
+                let x = self.dense.pos[v as usize];
+                self.dense.vertex_normals(v, &mut normals);
+                if let Found::Hit(t, h) = find_primary(x, &normals, &far, self.mode, cur.d.abs() + tie, true, false, scratch) {
+                    if crate::guarantee::preferred(h.d.abs(), far.ids[t], cur.d.abs(), cur.face) {
+                        *m = Map { face: far.ids[t], bary: h.bary, d: h.d };
+                    }
                 }
             }
+        };
+        let chunks = chunk_count(c.dense.len(), PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD);
+        if chunks <= 1 {
+            solve(maps, &c.dense, scratch);
+        } else {
+            let size = c.dense.len().div_ceil(chunks);
+            maps.par_chunks_mut(size).zip(c.dense.par_chunks(size)).for_each(|(m, v)| solve(m, v, &mut Scratch::default()));
         }
         keep_spare(far);
     }
@@ -522,16 +533,35 @@ impl State {
             region.push_from(tris, t);
         }
         region.finish();
-        let dense = &self.dense;
-        let mut normals = Vec::new();
+        // Each vertex on its own, in contiguous chunks over the threads (as `far_primaries`):
+        // its new map on the region, or none (then it is near).
+        let solve = |verts: &[u32], scratch: &mut Scratch| -> Vec<(u32, Option<Map>)> {
+            let mut normals = Vec::new();
+            verts
+                .iter()
+                .map(|&v| {
+                    let cur = self.assoc[v as usize];
+                    let x = self.dense.pos[v as usize];
+                    self.dense.vertex_normals(v, &mut normals);
+                    match find_primary(x, &normals, &region, self.mode, cur.d.abs(), true, false, scratch) {
+                        Found::Hit(t, h) if crate::guarantee::preferred(h.d.abs(), region.ids[t], cur.d.abs(), cur.face) => (v, Some(Map { face: region.ids[t], bary: h.bary, d: h.d })),
+                        _ => (v, None),
+                    }
+                })
+                .collect()
+        };
+        let chunks = chunk_count(cand.len(), PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD);
+        let solved: Vec<(u32, Option<Map>)> = if chunks <= 1 {
+            solve(&cand, scratch)
+        } else {
+            let size = cand.len().div_ceil(chunks);
+            cand.par_chunks(size).flat_map_iter(|v| solve(v, &mut Scratch::default())).collect()
+        };
         let mut out = Vec::new();
-        for v in cand {
-            let cur = self.assoc[v as usize];
-            let x = self.dense.pos[v as usize];
-            dense.vertex_normals(v, &mut normals);
-            match find_primary(x, &normals, &region, self.mode, cur.d.abs(), true, false, scratch) {
-                Found::Hit(t, h) if crate::guarantee::preferred(h.d.abs(), region.ids[t], cur.d.abs(), cur.face) => out.push((v, Map { face: region.ids[t], bary: h.bary, d: h.d })),
-                _ => near.push(v),
+        for (v, m) in solved {
+            match m {
+                Some(m) => out.push((v, m)),
+                None => near.push(v),
             }
         }
         near.sort_unstable();
