@@ -9,7 +9,7 @@
 //!   gain a solution there ([`State::moved_primaries`]).
 
 use crate::decimate::{Candidate, NearRule, State};
-use crate::guarantee::chunks::{chunk_count, run_to_first_failure};
+use crate::guarantee::chunks::{chunk_count, flat_map_chunks, run_to_first_failure};
 use crate::guarantee::ids::IdIndex;
 use super::outcome::{Accepted, Outcome, Rejected};
 use crate::guarantee::{check_faces, find_primary, find_primary_capped, find_primary_near_first, find_primary_recording, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
@@ -18,7 +18,6 @@ use crate::decimate::stages::Stage;
 use std::time::Instant;
 use crate::topology::{face_of, INVALID};
 use glam::DVec3;
-use rayon::prelude::*;
 
 impl State {
     /// Builds the neighbourhood of a candidate after collapse with `placement`: region (less
@@ -455,12 +454,13 @@ impl State {
         }
         reads.extend_from_slice(&far.ids);
         let tie = crate::guarantee::SAME_SOLUTION_REL * self.dmax;
-        // Each vertex on its own (its map is its own result): in contiguous chunks over the
-        // threads, so that a large region's far pass is not one thread's while the round waits.
-        let solve = |maps: &mut [Map], verts: &[u32], scratch: &mut Scratch| {
+        // Each vertex on its own, in contiguous chunks over the threads, so that a large
+        // region's far pass is not one thread's while the round waits: the better maps found.
+        let better = flat_map_chunks(&c.dense, PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD, scratch, |offset, verts, scratch| {
             let mut normals = Vec::new();
-            for (m, &v) in maps.iter_mut().zip(verts) {
-                let cur = *m;
+            let mut better = Vec::new();
+            for (k, &v) in verts.iter().enumerate() {
+                let cur = maps[offset + k];
                 if self.dense.pinched[v as usize] || cur.d == 0.0 {
                     continue;
                 }
@@ -468,17 +468,14 @@ impl State {
                 self.dense.vertex_normals(v, &mut normals);
                 if let Found::Hit(t, h) = find_primary(x, &normals, &far, self.mode, cur.d.abs() + tie, true, false, scratch) {
                     if crate::guarantee::preferred(h.d.abs(), far.ids[t], cur.d.abs(), cur.face) {
-                        *m = Map { face: far.ids[t], bary: h.bary, d: h.d };
+                        better.push((offset + k, Map { face: far.ids[t], bary: h.bary, d: h.d }));
                     }
                 }
             }
-        };
-        let chunks = chunk_count(c.dense.len(), PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD);
-        if chunks <= 1 {
-            solve(maps, &c.dense, scratch);
-        } else {
-            let size = c.dense.len().div_ceil(chunks);
-            maps.par_chunks_mut(size).zip(c.dense.par_chunks(size)).for_each(|(m, v)| solve(m, v, &mut Scratch::default()));
+            better
+        });
+        for (i, m) in better {
+            maps[i] = m;
         }
         keep_spare(far);
     }
@@ -535,7 +532,7 @@ impl State {
         region.finish();
         // Each vertex on its own, in contiguous chunks over the threads (as `far_primaries`):
         // its new map on the region, or none (then it is near).
-        let solve = |verts: &[u32], scratch: &mut Scratch| -> Vec<(u32, Option<Map>)> {
+        let solved = flat_map_chunks(&cand, PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD, scratch, |_, verts, scratch| {
             let mut normals = Vec::new();
             verts
                 .iter()
@@ -549,14 +546,7 @@ impl State {
                     }
                 })
                 .collect()
-        };
-        let chunks = chunk_count(cand.len(), PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD);
-        let solved: Vec<(u32, Option<Map>)> = if chunks <= 1 {
-            solve(&cand, scratch)
-        } else {
-            let size = cand.len().div_ceil(chunks);
-            cand.par_chunks(size).flat_map_iter(|v| solve(v, &mut Scratch::default())).collect()
-        };
+        });
         let mut out = Vec::new();
         for (v, m) in solved {
             match m {

@@ -676,8 +676,8 @@ impl State {
     }
 
     /// Drops what only the decimation and its re-check read — the queue and its set, the fail
-    /// memo, both grids, the face members, the edge reaches, the kept bounds and the base's
-    /// topology — once [`State::compact`] has the base: the global check and the outputs read
+    /// memo, both grids, the face members, the edge reaches and the base's topology (the kept
+    /// bounds are gone with [`State::run`]) — once [`State::compact`] has the base: the global check and the outputs read
     /// the scan (`dense`), the association (`assoc`) and the counters only. Why: the checks'
     /// own arrays came on top of all this and set the run's peak memory (the bunny on two
     /// threads: 33.6 MB at the end of the decimation, 36.9 MB in the checks).
@@ -687,7 +687,6 @@ impl State {
         self.face_grid = FaceGrid::default();
         self.face_dense = members::FaceMembers::default();
         self.edge_reach = Vec::new();
-        self.drop_bounds();
         self.topo = Topology::default();
         self.pos = Vec::new();
         self.dir = Vec::new();

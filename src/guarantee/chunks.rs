@@ -21,6 +21,25 @@ pub fn chunk_count(n: usize, min: usize, per_thread: usize) -> usize {
     }
 }
 
+/// Runs `work(offset, chunk, scratch)` on contiguous chunks of `items` over the threads
+/// ([`chunk_count`] of them, `offset` the chunk's first index) and concatenates what they
+/// return, in item order, so the result is the one a single walk gives. With one chunk it is
+/// one call on this thread with `scratch`; otherwise each chunk has a fresh `S::default()`.
+pub fn flat_map_chunks<T: Sync, R: Send, S: Default>(
+    items: &[T],
+    min: usize,
+    per_thread: usize,
+    scratch: &mut S,
+    work: impl Fn(usize, &[T], &mut S) -> Vec<R> + Sync,
+) -> Vec<R> {
+    let chunks = chunk_count(items.len(), min, per_thread);
+    if chunks <= 1 {
+        return work(0, items, scratch);
+    }
+    let size = items.len().div_ceil(chunks);
+    items.par_chunks(size).enumerate().flat_map_iter(|(k, chunk)| work(k * size, chunk, &mut S::default())).collect()
+}
+
 /// Runs `work(chunk, stop)` on `chunks` contiguous chunks of `items` over the threads and
 /// returns the results of the chunks that ran, in item order. Every chunk before the first
 /// failing one runs whole; a chunk after it may stop early (`stop()` turns true) or not run at
@@ -57,6 +76,21 @@ pub fn run_to_first_failure<T: Sync, R: Send, E: Send>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn chunks_map_in_item_order_with_their_offsets() {
+        // Each item paired with its index from the chunk's offset, the odd ones kept: the
+        // same list a single walk gives, on any thread count.
+        let items: Vec<u32> = (0..1000).map(|i| i * 3).collect();
+        let want: Vec<(usize, u32)> = items.iter().copied().enumerate().filter(|e| e.1 % 2 == 1).collect();
+        for threads in [1, 2, 5] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let got = pool.install(|| {
+                flat_map_chunks(&items, 16, 4, &mut (), |offset, chunk, _| chunk.iter().enumerate().map(|(k, &x)| (offset + k, x)).filter(|e| e.1 % 2 == 1).collect())
+            });
+            assert_eq!(got, want, "{threads} threads");
+        }
+    }
 
     #[test]
     fn the_first_failure_is_the_one_in_item_order() {
