@@ -12,7 +12,7 @@ use crate::decimate::{Candidate, NearRule, State};
 use crate::guarantee::chunks::{chunk_count, flat_map_chunks, run_to_first_failure};
 use crate::guarantee::ids::IdIndex;
 use super::outcome::{Accepted, Outcome, Rejected};
-use crate::guarantee::{check_faces, find_primary, find_primary_capped, find_primary_near_first, find_primary_recording, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
+use crate::guarantee::{check_alone, check_faces, find_primary, find_primary_capped, find_primary_near_first, find_primary_recording, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
 use crate::geometry::{beyond_box, face_cross, vertex_direction};
 use crate::decimate::stages::Stage;
 use std::time::Instant;
@@ -105,6 +105,13 @@ impl State {
             self.clock.lap(Stage::Primaries, t);
             return Err(Reject::Unmapped);
         }
+        // (Its few solves counted as continuity: it is that stage's hinted check, run early.)
+        let t = self.clock.lap(Stage::Primaries, t);
+        let torn = self.torn_at_hint(c, tris, n_region, first, scratch);
+        let t = self.clock.lap(Stage::Continuity, t);
+        if let Some(r) = torn {
+            return Err(r);
+        }
         let (maps, _) = self.solve_region_vertices(
             c,
             tris,
@@ -153,6 +160,91 @@ impl State {
             }
         }
         false
+    }
+
+    /// Whether the dense triangle or edge where an earlier placement or try of the collapse
+    /// tore or flipped (`FailAt::Face`, `FailAt::Edge` in `first`) fails again, checked alone
+    /// before the region's solve: a placement that tears mostly tears where the last one did
+    /// (the dragon: 10,928 of its 14,588 torn or flipped placements), and had first solved every
+    /// region vertex and searched the faces beyond (about half of such a placement's time). The
+    /// element's vertices are solved as the region's solve and the reach stage solve them — a
+    /// region vertex over the neighbourhood, then over the faces outside within its |d|
+    /// ([`State::far_primaries`]' rule, vertex by vertex); a vertex outside onto the region
+    /// where [`State::moved_primaries`] would test it — so their maps are the whole test's,
+    /// and only elements the whole test checks are taken: a triangle of `c.dense_faces`, an
+    /// edge of one it judges. The whole test would then fail too (which check fails first
+    /// changes no verdict), so the placement fails here, without solving the rest; the element
+    /// goes first in `first` again. Not strict (as [`State::unmapped_at_hint`]).
+    pub(crate) fn torn_at_hint(&self, c: &Candidate, tris: &Tris, n_region: usize, first: &mut Vec<FailAt>, scratch: &mut Scratch) -> Option<Reject> {
+        if !self.fail_hints || self.strict {
+            return None;
+        }
+        let dense = &self.dense;
+        let checked = |f: u32| c.dense_faces.binary_search(&f).is_ok();
+        // A triangle the check judges: no vertex pinched (unmapped: the region's solve fails
+        // first), no edge exempt.
+        let judged = |f: u32| !dense.faces[f as usize].iter().any(|&v| dense.pinched[v as usize]) && !dense.has_exempt_edge(f);
+        let hints: Vec<FailAt> = first.clone();
+        for h in hints {
+            let (face, mut verts) = match h {
+                FailAt::Face(f) if checked(f) && judged(f) => (f, dense.faces[f as usize].to_vec()),
+                FailAt::Edge(a, b) => {
+                    let of_judged = dense.faces_of(a).iter().copied().find(|&f| dense.faces[f as usize].contains(&b) && checked(f) && judged(f));
+                    match of_judged {
+                        Some(f) => (f, vec![a, b]),
+                        None => continue,
+                    }
+                }
+                _ => continue,
+            };
+            verts.sort_unstable();
+            let mut few = Vec::with_capacity(verts.len());
+            for v in verts {
+                // A region vertex without a solution: the region's solve fails, later.
+                few.push((v, self.map_alone(c, tris, n_region, v, scratch)?));
+            }
+            let ctx = CandidateContext { st: self, c, tris, faces: &[face], outer: std::sync::OnceLock::new(), maps: CheckMaps::Few(&few) };
+            let mut out = CheckOut::default();
+            let r = check_alone(&ctx, dense, h, &mut out);
+            self.clock.work(&out.work);
+            if let Err(reason) = r {
+                self.clock.torn_at_hint();
+                note_failure(first, h);
+                return Some(reason);
+            }
+        }
+        None
+    }
+
+    /// Non-pinched dense vertex v's map in the placement's test, found alone: a region vertex's
+    /// primary over the neighbourhood `tris`, or a better one on the faces outside within its |d|
+    /// ([`State::far_primaries`]); a vertex outside, its association or, where
+    /// [`State::moved_primaries`] tests it, a better solution on the region. `None`: a region
+    /// vertex with no solution.
+    fn map_alone(&self, c: &Candidate, tris: &Tris, n_region: usize, v: u32, scratch: &mut Scratch) -> Option<Map> {
+        let x = self.dense.pos[v as usize];
+        let mut normals = Vec::new();
+        self.dense.vertex_normals(v, &mut normals);
+        if c.dense.binary_search(&v).is_ok() {
+            let Found::Hit(t, h) = find_primary_hinted(x, &normals, tris, self.mode, self.dmax, true, false, &[], scratch) else { return None };
+            let m = Map { face: tris.ids[t], bary: h.bary, d: h.d };
+            if m.d == 0.0 {
+                return Some(m);
+            }
+            let far = self.far_faces(c, tris, x, x, m.d.abs() + self.round_move);
+            let better = self.better_on(x, &normals, &far, m, scratch);
+            keep_spare(far);
+            return Some(better.unwrap_or(m));
+        }
+        let cur = self.assoc[v as usize];
+        if self.max_abs_d <= 0.0 || n_region == 0 {
+            return Some(cur);
+        }
+        let spheres = (self.near == NearRule::Triangles).then(|| RegionSpheres::new(&tris.pos[..n_region], &tris.sphere[..n_region]));
+        if self.region_distance(v, x, cur.d.abs(), State::region_box(tris, n_region), spheres.as_ref()) >= cur.d.abs() {
+            return Some(cur);
+        }
+        Some(self.moved_onto(v, &normals, &region_tris(tris, n_region), scratch).unwrap_or(cur))
     }
 
     /// Notes where the region's solve failed ([`State::solve_region_vertices`]'s error: an
@@ -278,18 +370,9 @@ impl State {
         // Where each of the candidate's dense vertices sits (its map is asked for at every
         // edge the check walks); built per check, so that only the candidates being checked
         // hold one.
-        let mut dense_index = IdIndex::default();
-        dense_index.build(&c.dense);
-        let ctx = CandidateContext {
-            st: self,
-            c,
-            dense_index,
-            tris,
-            faces: &faces,
-            outer: std::sync::OnceLock::new(),
-            maps: &maps,
-            extras: &extras,
-        };
+        let mut index = IdIndex::default();
+        index.build(&c.dense);
+        let ctx = CandidateContext { st: self, c, tris, faces: &faces, outer: std::sync::OnceLock::new(), maps: CheckMaps::Region { index, maps: &maps, extras: &extras } };
         self.clock.items(faces.len(), edges.len());
         let mut out = CheckOut { reads: read_faces, ..Default::default() };
         let r = check_faces(&ctx, dense, &faces, &edges, self.fail_hints.then_some(&first[..]), &mut out);
@@ -317,7 +400,7 @@ impl State {
     /// can reach: every live face within OUTER_REACH × the largest |d| of their vertices (plus
     /// their bounding box. Built on a candidate's first midpoint. A midpoint whose own |d| reaches beyond
     /// the box queries the grid itself.
-    fn outer_faces(&self, c: &Candidate, tris: &Tris, faces: &[u32], maps: &[Map], extras: &[(u32, Map)]) -> Outer {
+    fn outer_faces(&self, c: &Candidate, tris: &Tris, faces: &[u32], maps: &CheckMaps) -> Outer {
         let mut lo = DVec3::splat(f64::INFINITY);
         let mut hi = DVec3::splat(f64::NEG_INFINITY);
         let mut dmax_seen: f64 = 0.0;
@@ -326,14 +409,7 @@ impl State {
                 let x = self.dense.pos[v as usize];
                 lo = lo.min(x);
                 hi = hi.max(x);
-                let d = match c.dense.binary_search(&v) {
-                    Ok(i) => maps[i].d,
-                    Err(_) => match extras.binary_search_by_key(&v, |e| e.0) {
-                        Ok(i) => extras[i].1.d,
-                        Err(_) => self.assoc[v as usize].d,
-                    },
-                };
-                dmax_seen = dmax_seen.max(d.abs());
+                dmax_seen = dmax_seen.max(maps.get(self, c, v).d.abs());
             }
         }
         // Widened by how far the round's other commits can move a face: a point records as
@@ -365,9 +441,18 @@ impl State {
         let mut t = spare_tris();
         t.reserve(ids.len());
         for &f in ids {
-            let b = self.bounds_of(f);
-            if keep(b.sphere) {
-                self.push_face(&mut t, f, &b);
+            if let Some(b) = self.kept_bounds(f) {
+                if keep(b.sphere) {
+                    self.push_face(&mut t, f, &b);
+                }
+                continue;
+            }
+            // Not kept: the sphere first (the bounds' own), the rest only for a face kept —
+            // most of a grid query's faces are not (the dragon, early in a run: deriving the
+            // bounds of every face queried took a sixth of the time).
+            let fi = self.face_info_current(f);
+            if keep(crate::geometry::triangle_sphere(&fi.pos)) {
+                t.push_with(f, fi.verts, fi.pos, fi.dir, &crate::guarantee::TriBounds::new(&fi.pos, &fi.dir));
             }
         }
         t.finish();
@@ -444,16 +529,12 @@ impl State {
         }
         // Every face that can come within a vertex's reach when the round's other commits move
         // faces (`round_move`) is read.
-        let reach = reach + self.round_move;
-        let faces = self.faces_outside(c, tris, lo - DVec3::splat(reach), hi + DVec3::splat(reach));
-        // Skip faces beyond every vertex's reach.
-        let far = self.prepare_faces(&faces, |(ctr, r)| !(ctr.clamp(lo, hi).distance(ctr) - r > reach));
+        let far = self.far_faces(c, tris, lo, hi, reach + self.round_move);
         if far.is_empty() {
             keep_spare(far);
             return;
         }
         reads.extend_from_slice(&far.ids);
-        let tie = crate::guarantee::SAME_SOLUTION_REL * self.dmax;
         // Each vertex on its own, in contiguous chunks over the threads, so that a large
         // region's far pass is not one thread's while the round waits: the better maps found.
         let better = flat_map_chunks(&c.dense, PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD, scratch, |offset, verts, scratch| {
@@ -464,12 +545,9 @@ impl State {
                 if self.dense.pinched[v as usize] || cur.d == 0.0 {
                     continue;
                 }
-                let x = self.dense.pos[v as usize];
                 self.dense.vertex_normals(v, &mut normals);
-                if let Found::Hit(t, h) = find_primary(x, &normals, &far, self.mode, cur.d.abs() + tie, true, false, scratch) {
-                    if crate::guarantee::preferred(h.d.abs(), far.ids[t], cur.d.abs(), cur.face) {
-                        better.push((offset + k, Map { face: far.ids[t], bary: h.bary, d: h.d }));
-                    }
+                if let Some(m) = self.better_on(self.dense.pos[v as usize], &normals, &far, cur, scratch) {
+                    better.push((offset + k, m));
                 }
             }
             better
@@ -478,6 +556,48 @@ impl State {
             maps[i] = m;
         }
         keep_spare(far);
+    }
+
+    /// The faces outside `c`'s neighbourhood that a solution of a point in the box [lo, hi]
+    /// with |d| ≤ `reach` can lie on (every face within `reach` of the box, by its bounding
+    /// sphere), prepared for searches.
+    fn far_faces(&self, c: &Candidate, tris: &Tris, lo: DVec3, hi: DVec3, reach: f64) -> Tris {
+        let faces = self.faces_outside(c, tris, lo - DVec3::splat(reach), hi + DVec3::splat(reach));
+        self.prepare_faces(&faces, |(ctr, r)| !(ctr.clamp(lo, hi).distance(ctr) - r > reach))
+    }
+
+    /// A better map than `cur` for the point x on the faces `far` (where a smaller |d| lies
+    /// within |d| of x), by the rule of one search over the union; `None` where `cur` stays.
+    fn better_on(&self, x: DVec3, normals: &[DVec3], far: &Tris, cur: Map, scratch: &mut Scratch) -> Option<Map> {
+        let tie = crate::guarantee::SAME_SOLUTION_REL * self.dmax;
+        let Found::Hit(t, h) = find_primary(x, normals, far, self.mode, cur.d.abs() + tie, true, false, scratch) else { return None };
+        crate::guarantee::preferred(h.d.abs(), far.ids[t], cur.d.abs(), cur.face).then_some(Map { face: far.ids[t], bary: h.bary, d: h.d })
+    }
+
+    /// How far vertex v (at x, |d| = `dv`) outside the region lies from it, as
+    /// [`State::moved_primaries`] measures it: from the region's box [lo, hi], and, with the
+    /// triangle near rule, from its triangles (`spheres`) where the box is nearer than `dv` +
+    /// the vertex's edge reach.
+    fn region_distance(&self, v: u32, x: DVec3, dv: f64, (lo, hi): (DVec3, DVec3), spheres: Option<&RegionSpheres>) -> f64 {
+        let dist = x.clamp(lo, hi).distance(x);
+        let limit = dv + self.edge_reach[v as usize];
+        match spheres {
+            Some(s) if dist < limit => s.distance_below(x, dv, limit),
+            _ => dist,
+        }
+    }
+
+    /// The box of a candidate's region faces (the first `n_region` of `tris`).
+    fn region_box(tris: &Tris, n_region: usize) -> (DVec3, DVec3) {
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        for t in 0..n_region {
+            for q in tris.pos[t] {
+                lo = lo.min(q);
+                hi = hi.max(q);
+            }
+        }
+        (lo, hi)
     }
 
     /// Dense vertices associated outside the region whose primary solution moves onto it: a
@@ -491,14 +611,7 @@ impl State {
         if self.max_abs_d <= 0.0 || n_region == 0 {
             return (Vec::new(), Vec::new());
         }
-        let mut lo = DVec3::splat(f64::INFINITY);
-        let mut hi = DVec3::splat(f64::NEG_INFINITY);
-        for t in 0..n_region {
-            for q in tris.pos[t] {
-                lo = lo.min(q);
-                hi = hi.max(q);
-            }
-        }
+        let (lo, hi) = State::region_box(tris, n_region);
         let mut cand = Vec::new();
         let mut near = Vec::new();
         let spheres = (self.near == NearRule::Triangles).then(|| RegionSpheres::new(&tris.pos[..n_region], &tris.sphere[..n_region]));
@@ -508,12 +621,8 @@ impl State {
             if self.dense.pinched[v as usize] || c.dense.binary_search(&v).is_ok() {
                 return;
             }
-            let x = self.dense.pos[v as usize];
-            let mut dist = x.clamp(lo, hi).distance(x);
+            let dist = self.region_distance(v, self.dense.pos[v as usize], dv, (lo, hi), spheres.as_ref());
             let limit = dv + self.edge_reach[v as usize];
-            if let (Some(s), true) = (&spheres, dist < limit) {
-                dist = s.distance_below(x, dv, limit);
-            }
             if dist < dv {
                 cand.push(v);
             } else if dist < limit {
@@ -525,11 +634,7 @@ impl State {
             return (Vec::new(), near);
         }
         cand.sort_unstable();
-        let mut region = Tris::default();
-        for t in 0..n_region {
-            region.push_from(tris, t);
-        }
-        region.finish();
+        let region = region_tris(tris, n_region);
         // Each vertex on its own, in contiguous chunks over the threads (as `far_primaries`):
         // its new map on the region, or none (then it is near).
         let solved = flat_map_chunks(&cand, PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD, scratch, |_, verts, scratch| {
@@ -537,13 +642,8 @@ impl State {
             verts
                 .iter()
                 .map(|&v| {
-                    let cur = self.assoc[v as usize];
-                    let x = self.dense.pos[v as usize];
                     self.dense.vertex_normals(v, &mut normals);
-                    match find_primary(x, &normals, &region, self.mode, cur.d.abs(), true, false, scratch) {
-                        Found::Hit(t, h) if crate::guarantee::preferred(h.d.abs(), region.ids[t], cur.d.abs(), cur.face) => (v, Some(Map { face: region.ids[t], bary: h.bary, d: h.d })),
-                        _ => (v, None),
-                    }
+                    (v, self.moved_onto(v, &normals, &region, scratch))
                 })
                 .collect()
         });
@@ -558,6 +658,16 @@ impl State {
         (out, near)
     }
 
+    /// Vertex v's new map on the region's faces `region` where its primary moves there (a
+    /// solution preferred to its association), else `None`.
+    fn moved_onto(&self, v: u32, normals: &[DVec3], region: &Tris, scratch: &mut Scratch) -> Option<Map> {
+        let cur = self.assoc[v as usize];
+        match find_primary(self.dense.pos[v as usize], normals, region, self.mode, cur.d.abs(), true, false, scratch) {
+            Found::Hit(t, h) if crate::guarantee::preferred(h.d.abs(), region.ids[t], cur.d.abs(), cur.face) => Some(Map { face: region.ids[t], bary: h.bary, d: h.d }),
+            _ => None,
+        }
+    }
+
     /// Association of a pinched vertex without any solution: the nearest triangle's centre.
     fn nearest_fallback(&self, x: DVec3, tris: &Tris) -> Map {
         let mut best = (f64::INFINITY, 0usize);
@@ -570,6 +680,16 @@ impl State {
         Map { face: tris.ids[best.1], bary: [1.0 / 3.0; 3], d: 0.0 }
     }
 
+}
+
+/// The region's faces of a neighbourhood (its first `n_region`) as a set of their own.
+fn region_tris(tris: &Tris, n_region: usize) -> Tris {
+    let mut region = Tris::default();
+    for t in 0..n_region {
+        region.push_from(tris, t);
+    }
+    region.finish();
+    region
 }
 
 /// How many places of earlier failures a candidate tests first, newest first. Why: a collapse
@@ -725,14 +845,35 @@ fn sphere_meets_box((ctr, r): (DVec3, f64), lo: DVec3, hi: DVec3, margin: f64) -
 struct CandidateContext<'a> {
     st: &'a State,
     c: &'a Candidate,
-    /// Place of each of `c.dense`.
-    dense_index: IdIndex,
     tris: &'a Tris,
     /// The dense faces checked.
     faces: &'a [u32],
     outer: std::sync::OnceLock<Outer>,
-    maps: &'a [Map],
-    extras: &'a [(u32, Map)],
+    maps: CheckMaps<'a>,
+}
+
+/// The new maps a candidate's check reads; every other vertex keeps its association.
+enum CheckMaps<'a> {
+    /// The region's solve: a map per vertex of `c.dense` (found by `index`), and the vertices
+    /// outside whose primary moves onto the region (`extras`, ascending).
+    Region { index: IdIndex, maps: &'a [Map], extras: &'a [(u32, Map)] },
+    /// The vertices of one element checked alone ([`State::torn_at_hint`]), ascending: the
+    /// check reads no other.
+    Few(&'a [(u32, Map)]),
+}
+
+impl CheckMaps<'_> {
+    /// Vertex `v`'s map as the check sees it (a pinched vertex's too).
+    fn get(&self, st: &State, c: &Candidate, v: u32) -> Map {
+        let by_vertex = |list: &[(u32, Map)]| list.binary_search_by_key(&v, |e| e.0).ok().map(|i| list[i].1);
+        match self {
+            CheckMaps::Region { index, maps, extras } => match index.get(&c.dense, v) {
+                Some(i) => maps[i],
+                None => by_vertex(extras).unwrap_or(st.assoc[v as usize]),
+            },
+            CheckMaps::Few(few) => by_vertex(few).unwrap_or(st.assoc[v as usize]),
+        }
+    }
 }
 
 impl MapContext for CandidateContext<'_> {
@@ -740,13 +881,7 @@ impl MapContext for CandidateContext<'_> {
         if self.st.dense.pinched[v as usize] {
             return None;
         }
-        if let Some(i) = self.dense_index.get(&self.c.dense, v) {
-            return Some(self.maps[i]);
-        }
-        match self.extras.binary_search_by_key(&v, |e| e.0) {
-            Ok(i) => Some(self.extras[i].1),
-            Err(_) => Some(self.st.assoc[v as usize]),
-        }
+        Some(self.maps.get(self.st, self.c, v))
     }
     fn face_info(&self, face: u32) -> FaceInfo {
         match self.tris.index_of(face) {
@@ -850,7 +985,7 @@ impl MapContext for CandidateContext<'_> {
         // Outside the neighbourhood, the same reach as a vertex's: a face holding a smaller |d|
         // lies within |d| of x. First the faces around the checked triangles, then, if the
         // reach leaves their box, a grid query of this point's own.
-        let outer = self.outer.get_or_init(|| st.outer_faces(self.c, self.tris, self.faces, self.maps, self.extras));
+        let outer = self.outer.get_or_init(|| st.outer_faces(self.c, self.tris, self.faces, &self.maps));
         // Recorded as read: every face that can come within the reach the search ends with
         // (its hit's |d| + the tie) when the round's other commits move faces by up to
         // `round_move` ([`crate::guarantee::record_upto`]).
@@ -886,7 +1021,7 @@ impl MapContext for CandidateContext<'_> {
                 &mut buf.faces,
                 corners,
                 info,
-                |f, _| st.bounds_of(f),
+                |f, fi| st.bounds_with(f, fi),
                 st.mode,
                 st.dmax,
                 reach,

@@ -52,6 +52,9 @@ pub struct StageClock {
     work: Mutex<PointWork>,
     /// Placements failed at a vertex an earlier try found unmapped, tested before the rest.
     unmapped_at_hint: AtomicU64,
+    /// Placements failed at a dense triangle or edge an earlier try found torn or flipped,
+    /// checked before the rest.
+    torn_at_hint: AtomicU64,
 }
 
 impl StageClock {
@@ -91,6 +94,11 @@ impl StageClock {
         self.unmapped_at_hint.fetch_add(1, Ordering::Relaxed);
     }
 
+    /// Counts a placement failed at a torn or flipped element tested first (see `torn_at_hint`).
+    pub fn torn_at_hint(&self) {
+        self.torn_at_hint.fetch_add(1, Ordering::Relaxed);
+    }
+
     /// Adds one failed placement's time by the reason it failed.
     pub fn failed(&self, reason: Reject, since: Instant) {
         let (n, ns) = &self.failed[reason as usize];
@@ -110,6 +118,7 @@ impl StageClock {
             edges_checked: self.edges.load(Ordering::Relaxed),
             work: *self.work.lock().unwrap_or_else(|e| e.into_inner()),
             unmapped_at_hint: self.unmapped_at_hint.load(Ordering::Relaxed),
+            torn_at_hint: self.torn_at_hint.load(Ordering::Relaxed),
             failed_placements: REASONS
                 .iter()
                 .filter(|&&r| self.failed[r as usize].0.load(Ordering::Relaxed) > 0)
@@ -148,6 +157,10 @@ pub struct StageSummary {
     /// placement or try of the same collapse found no solution, tested alone before the region's
     /// other vertices (the same verdict, without solving the rest).
     pub unmapped_at_hint: u64,
+    /// Of the placements failed as torn or flipped, those failed at a dense triangle or edge
+    /// where an earlier placement or try found a tear or flip, checked alone before the region's
+    /// solve (the same verdict, without solving the rest).
+    pub torn_at_hint: u64,
     /// Failed placements by reason: (reason, count, CPU seconds).
     pub failed_placements: Vec<(String, u64, f64)>,
 }

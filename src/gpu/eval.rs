@@ -431,6 +431,10 @@ impl Evaluator for GpuEvaluator {
                     if state.unmapped_at_hint(c, &tris, first, &mut scratch) {
                         return (Err(Reject::Unmapped), 0, t.elapsed().as_secs_f64());
                     }
+                    // ...and a torn or flipped element of an earlier try.
+                    if let Some(r) = state.torn_at_hint(c, &tris, n_region, first, &mut scratch) {
+                        return (Err(r), 0, t.elapsed().as_secs_f64());
+                    }
                     let mine = &answers[prep.first_query..prep.first_query + c.dense.len()];
                     let (solved, states) = state.solve_region_vertices(
                         c,

@@ -1480,6 +1480,36 @@ pub enum FailAt {
     Vertex(u32),
 }
 
+/// Checks one element as the check of a triangle set does ([`check_faces`]): a dense
+/// triangle's continuity and orientation, or an edge's continuity. `Vertex` passes (the
+/// region's solve tests those).
+fn check_item<C: MapContext>(ctx: &C, dense: &DenseData, item: FailAt, sc: &mut CheckScratch, stats: &mut CheckStats) -> Result<(), super::primary::Reject> {
+    use super::primary::Reject;
+    match item {
+        FailAt::Face(f) => match check_face(ctx, dense, f, false, sc, stats) {
+            FaceCheck::Torn => Err(Reject::Tear),
+            FaceCheck::Flipped => Err(Reject::Flip),
+            FaceCheck::Fine | FaceCheck::Skipped => Ok(()),
+        },
+        FailAt::Edge(a, b) => match edge_jump(ctx, dense, a, b, sc) {
+            Some(j) if j > 0.0 => Err(Reject::Tear),
+            _ => Ok(()),
+        },
+        FailAt::Vertex(_) => Ok(()),
+    }
+}
+
+/// One element checked alone, with no walks shared — as [`check_faces`] checks the elements
+/// where an earlier try failed, before the rest: the same verdict as its check among the rest.
+/// `out` gets what its searches recorded, its work and its time (as continuity's).
+pub fn check_alone<C: MapContext>(ctx: &C, dense: &DenseData, item: FailAt, out: &mut CheckOut) -> Result<(), super::primary::Reject> {
+    let mut sc = CheckScratch::default();
+    let t = std::time::Instant::now();
+    let r = check_item(ctx, dense, item, &mut sc, &mut CheckStats::default());
+    out.continuity_ns += out.absorb(Spent::take(&mut sc.solve, t));
+    r
+}
+
 /// The decimator's form of the check: the dense triangles `faces` (orientation and continuity)
 /// and the dense `edges` (continuity only), both ascending, stopping at the first failure.
 /// Which fails first does not change the verdict, only the time to it. The elements of `first`
@@ -1505,27 +1535,9 @@ pub fn check_faces<C: MapContext + Sync>(
         FailAt::Vertex(_) => false,
     };
     let hinted: Vec<FailAt> = first.unwrap_or(&[]).iter().copied().filter(listed).collect();
-    let check = |item: FailAt, sc: &mut CheckScratch, stats: &mut CheckStats| -> Result<(), (Reject, FailAt)> {
-        match item {
-            FailAt::Face(f) => match check_face(ctx, dense, f, false, sc, stats) {
-                FaceCheck::Torn => Err((Reject::Tear, item)),
-                FaceCheck::Flipped => Err((Reject::Flip, item)),
-                FaceCheck::Fine | FaceCheck::Skipped => Ok(()),
-            },
-            FailAt::Edge(a, b) => match edge_jump(ctx, dense, a, b, sc) {
-                Some(j) if j > 0.0 => Err((Reject::Tear, item)),
-                _ => Ok(()),
-            },
-            FailAt::Vertex(_) => Ok(()), // never listed: the region's solve tests those
-        }
-    };
-    let mut sc = CheckScratch::default();
-    let mut stats = CheckStats::default();
+    let check = |item: FailAt, sc: &mut CheckScratch, stats: &mut CheckStats| check_item(ctx, dense, item, sc, stats).map_err(|r| (r, item));
     // Where an earlier try failed: alone, first (they mostly fail again).
-    let t = std::time::Instant::now();
-    let r = hinted.iter().try_for_each(|&item| check(item, &mut sc, &mut stats));
-    out.continuity_ns += out.absorb(Spent::take(&mut sc.solve, t));
-    r?;
+    hinted.iter().try_for_each(|&item| check_alone(ctx, dense, item, out).map_err(|r| (r, item)))?;
     // Continuity: every edge the walk would visit, once — the listed edges and the edges of
     // the triangles that are not skipped (exempt or unmapped) — in (lower, higher) order.
     let judged = |f: u32| judged_maps(ctx, dense, f).is_some();
