@@ -184,8 +184,7 @@ impl State {
         // A triangle the check judges: no vertex pinched (unmapped: the region's solve fails
         // first), no edge exempt.
         let judged = |f: u32| !dense.faces[f as usize].iter().any(|&v| dense.pinched[v as usize]) && !dense.has_exempt_edge(f);
-        let hints: Vec<FailAt> = first.clone();
-        for h in hints {
+        for &h in first.iter() {
             let (face, mut verts) = match h {
                 FailAt::Face(f) if checked(f) && judged(f) => (f, dense.faces[f as usize].to_vec()),
                 FailAt::Edge(a, b) => {
