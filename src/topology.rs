@@ -256,8 +256,10 @@ impl Topology {
         scratch.iter().copied().find(|&h| self.to(h) == b)
     }
 
-    /// Length (in edges) of the boundary loop through boundary half-edge `h` (opp[h] == INVALID).
-    pub fn boundary_loop_len(&self, h: u32, scratch: &mut Vec<u32>) -> usize {
+    /// Length (in edges) of the boundary loop through boundary half-edge `h` (opp[h] == INVALID),
+    /// counted up to `max` + 1 (the decimator asks only whether a loop is a triangle; a scan's
+    /// outer boundary runs to thousands of edges).
+    pub fn boundary_loop_len(&self, h: u32, max: usize, scratch: &mut Vec<u32>) -> usize {
         let mut len = 0;
         let mut cur = h;
         loop {
@@ -271,7 +273,7 @@ impl Topology {
                 Some(g) if g != h => cur = g,
                 _ => break,
             }
-            if len > self.corner.len() {
+            if len > self.corner.len().min(max) {
                 break;
             }
         }
@@ -465,7 +467,8 @@ mod tests {
         assert_eq!(n, vec![1, 3, 4]);
         let hb = t.find_half_edge(0, 1, &mut s).unwrap();
         assert_eq!(t.opp[hb as usize], INVALID);
-        assert_eq!(t.boundary_loop_len(hb, &mut s), 4);
+        assert_eq!(t.boundary_loop_len(hb, usize::MAX, &mut s), 4);
+        assert_eq!(t.boundary_loop_len(hb, 2, &mut s), 3);
     }
 
     #[test]

@@ -200,9 +200,9 @@ impl FaceGrid {
 
     /// Faces whose cells overlap the box [lo, hi], ascending, without repeats.
     pub fn query(&self, lo: DVec3, hi: DVec3, out: &mut Vec<u32>) {
-        self.query_where(lo, hi, |_| true, out);
-        out.sort_unstable();
-        out.dedup();
+        let mut all = Vec::new();
+        self.query_where(lo, hi, |_| true, &mut all);
+        crate::guarantee::ids::sorted_unique(all, out);
     }
 
     /// The faces of [`FaceGrid::query`] that `keep` accepts, cell by cell: unsorted, a face as

@@ -10,7 +10,7 @@
 
 use crate::decimate::{Candidate, NearRule, State};
 use crate::guarantee::chunks::{chunk_count, flat_map_chunks, run_to_first_failure};
-use crate::guarantee::ids::IdIndex;
+use crate::guarantee::ids::{merge_sorted, sorted_unique, IdIndex};
 use super::outcome::{Accepted, Outcome, Rejected};
 use crate::guarantee::{check_alone, check_faces, find_primary, find_primary_capped, find_primary_near_first, find_primary_recording, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
 use crate::geometry::{beyond_box, face_cross, vertex_direction};
@@ -345,12 +345,14 @@ impl State {
         // Whole triangles around every vertex whose map changes; only the edges of the vertices
         // whose maps stay but whose edges pass near the region (their images can change only by
         // reaching onto it, which continuity sees).
-        let mut faces: Vec<u32> = c.dense_faces.clone();
-        for &(v, _) in &extras {
-            faces.extend_from_slice(dense.faces_of(v));
-        }
-        faces.sort_unstable();
-        faces.dedup();
+        let faces = if extras.is_empty() {
+            c.dense_faces.clone()
+        } else {
+            let mut more = Vec::new();
+            let outside = |f: &u32| c.dense_faces.binary_search(f).is_err();
+            sorted_unique(extras.iter().flat_map(|&(v, _)| dense.faces_of(v).iter().copied()).filter(outside), &mut more);
+            merge_sorted(&c.dense_faces, &more)
+        };
         let mut edges: Vec<(u32, u32)> = Vec::new();
         for &v in &near {
             for &f in dense.faces_of(v) {
@@ -378,20 +380,18 @@ impl State {
         self.clock.add(Stage::Continuity, out.continuity_ns);
         self.clock.add(Stage::Orientation, out.orientation_ns);
         self.clock.work(&out.work);
-        let mut read_faces = out.reads;
+        let reads = out.reads;
         if let Err((reason, at)) = r {
             if self.fail_hints {
                 note_failure(first, at);
             }
             return Err(reason);
         }
-        read_faces.sort_unstable();
-        read_faces.dedup();
-        let mut read_vertices: Vec<u32> = faces.iter().flat_map(|&f| dense.faces[f as usize]).collect();
-        read_vertices.extend(edges.iter().flat_map(|e| [e.0, e.1]));
-        read_vertices.extend_from_slice(&near);
-        read_vertices.sort_unstable();
-        read_vertices.dedup();
+        let mut read_faces = Vec::new();
+        sorted_unique(reads, &mut read_faces);
+        let mut read_vertices = Vec::new();
+        let corners = faces.iter().flat_map(|&f| dense.faces[f as usize]);
+        sorted_unique(corners.chain(edges.iter().flat_map(|e| [e.0, e.1])).chain(near.iter().copied()), &mut read_vertices);
         Ok(Accepted { placement: 0, position: p, new_dirs, maps, extras, read_faces, read_vertices, test_s: 0.0 })
     }
 

@@ -12,6 +12,7 @@ pub mod recheck;
 pub mod stages;
 
 pub use outcome::{Accepted, Evaluator, Outcome, Rejected};
+use crate::guarantee::ids::sorted_unique;
 use crate::guarantee::{FaceInfo, FailAt, Map, NormalMode, Reject, TriBounds, Tris};
 use crate::geometry::{face_cross, vertex_direction};
 use crate::decimate::grid::{DenseGrid, FaceGrid};
@@ -337,7 +338,7 @@ impl State {
         }
         if boundary_edge {
             let hb = h_ab.or(h_ba).unwrap();
-            if self.topo.boundary_loop_len(hb, s) <= 3 {
+            if self.topo.boundary_loop_len(hb, 3, s) <= 3 {
                 return Err(Reject::Boundary);
             }
         }
@@ -438,9 +439,8 @@ impl State {
         dense.sort_unstable();
         c.order = order_vs.iter().map(|v| dense.binary_search(v).unwrap() as u32).collect();
         let dadj = &self.dense;
-        let mut dense_faces: Vec<u32> = dense.iter().flat_map(|&v| dadj.faces_of(v).iter().copied()).collect();
-        dense_faces.sort_unstable();
-        dense_faces.dedup();
+        let mut dense_faces = Vec::new();
+        sorted_unique(dense.iter().flat_map(|&v| dadj.faces_of(v).iter().copied()), &mut dense_faces);
         c.dense = dense;
         c.dense_faces = dense_faces;
     }
@@ -520,12 +520,15 @@ impl State {
             let stale = {
                 let dfaces = &self.dense.faces;
                 let touched = |v: u32| vmark[v as usize] == round;
-                c.dense_faces.iter().any(|&f| dfaces[f as usize].iter().any(|&v| touched(v)))
-                    || o.as_ref().is_ok_and(|a| {
+                match &o {
+                    // Its read vertices hold every corner of its dense faces.
+                    Ok(a) => {
                         a.extras.iter().any(|&(v, _)| touched(v))
                             || a.read_vertices.iter().any(|&v| touched(v))
                             || a.read_faces.iter().any(|&f| fmark[f as usize] == round)
-                    })
+                    }
+                    Err(_) => c.dense_faces.iter().any(|&f| dfaces[f as usize].iter().any(|&v| touched(v))),
+                }
             };
             if stale {
                 self.stats.deferred += 1;

@@ -21,7 +21,8 @@ pub struct Accepted {
     /// Base faces outside the neighbourhood that the test read (far primaries, bisection
     /// midpoints), ascending: a commit that changes one of them first makes this stale.
     pub read_faces: Vec<u32>,
-    /// Dense vertices whose maps the test read, ascending.
+    /// Dense vertices whose maps the test read, ascending: every corner of the candidate's
+    /// dense faces among them (a commit's stale test reads this list alone).
     pub read_vertices: Vec<u32>,
     /// Seconds the candidate's test took, all placements tried (as the stage clock counts a
     /// candidate: wall time on the thread that ran it; on the GPU path the CPU side of each
