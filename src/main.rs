@@ -326,35 +326,7 @@ enum Cmd {
     },
 }
 
-/// The instruction sets this binary was built to use (`.cargo/config.toml` builds for the CPU
-/// that builds) that the CPU running it lacks: a binary carried to an older machine says so
-/// instead of dying on an illegal instruction deep in a run.
-fn missing_cpu_features() -> Vec<&'static str> {
-    #[allow(unused_mut)]
-    let mut missing = Vec::new();
-    #[cfg(target_arch = "x86_64")]
-    {
-        macro_rules! need {
-            ($($f:tt),*) => {$(
-                if cfg!(target_feature = $f) && !std::arch::is_x86_feature_detected!($f) {
-                    missing.push($f);
-                }
-            )*};
-        }
-        need!("sse4.1", "sse4.2", "popcnt", "avx", "avx2", "fma", "bmi1", "bmi2", "lzcnt", "avx512f");
-    }
-    missing
-}
-
 fn main() {
-    let missing = missing_cpu_features();
-    if !missing.is_empty() {
-        eprintln!(
-            "dispdec: error: this binary was built for a CPU with {}, which this one lacks; build it here (cargo build --release), or for any x86-64 with RUSTFLAGS=\"-C target-cpu=x86-64\"",
-            missing.join(", ")
-        );
-        std::process::exit(2);
-    }
     dispdec::app::memory::keep_heap_compact();
     let cli = Cli::parse();
     if !cli.verbose && std::env::var_os("NODEVICE_SELECT").is_none() {
