@@ -47,6 +47,10 @@ impl Frame {
     fn index(&self, c: [usize; 3]) -> usize {
         (c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0]
     }
+    /// The cells from `a` to `b` (corners included), in the order of [`Frame::for_cells`].
+    fn cells(&self, a: [usize; 3], b: [usize; 3]) -> impl Iterator<Item = usize> + '_ {
+        (a[2]..=b[2]).flat_map(move |z| (a[1]..=b[1]).flat_map(move |y| (a[0]..=b[0]).map(move |x| self.index([x, y, z]))))
+    }
     fn for_cells(&self, a: [usize; 3], b: [usize; 3], mut f: impl FnMut(usize)) {
         for z in a[2]..=b[2] {
             for y in a[1]..=b[1] {
@@ -200,9 +204,8 @@ impl FaceGrid {
 
     /// Faces whose cells overlap the box [lo, hi], ascending, without repeats.
     pub fn query(&self, lo: DVec3, hi: DVec3, out: &mut Vec<u32>) {
-        let mut all = Vec::new();
-        self.query_where(lo, hi, |_| true, &mut all);
-        crate::guarantee::ids::sorted_unique(all, out);
+        let named = self.frame.cells(self.frame.coords(lo), self.frame.coords(hi)).flat_map(|c| self.cells[c].iter().copied());
+        crate::guarantee::ids::sorted_unique(named, out);
     }
 
     /// The faces of [`FaceGrid::query`] that `keep` accepts, cell by cell: unsorted, a face as

@@ -87,7 +87,6 @@ impl IdIndex {
 /// Ids marked, one bit each. Every bit set is cleared again before [`sorted_unique`] returns,
 /// so a thread's set starts empty each time and only grows (to the largest id it saw / 8 bytes:
 /// 250 kB for a 2M-triangle scan).
-#[derive(Default)]
 struct Bits {
     words: Vec<u64>,
 }

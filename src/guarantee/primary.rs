@@ -9,8 +9,6 @@ use crate::geometry::{
 };
 use super::ids::IdIndex;
 use glam::DVec3;
-use std::cmp::Reverse;
-use std::collections::BinaryHeap;
 
 /// Two solutions closer than this (relative to dmax) are the same point found by two
 /// triangles that share an edge or a vertex (strict mode's count of distinct solutions, the
@@ -360,15 +358,22 @@ fn from_order_key(key: i64) -> f64 {
 }
 
 /// Up to this many triangles in reach, a search takes them smallest bound first by scanning
-/// them each time, not through a heap. Why: it mostly stops after one or two (the bunny: ~12
-/// in reach); a heap pays off only where many are visited (strict mode).
+/// them each time; more, and it partitions off the [`SELECT_BATCH`] smallest at a time. Why:
+/// it mostly stops after one or two (the bunny: ~12 in reach).
 const SELECT_MAX: usize = 24;
+
+/// How many of many triangles in reach a search orders at a time. Why: where the first hit
+/// comes late (the shipped sample: 93 in reach on average), it mostly comes within the first
+/// few batches, and what follows it is passed over by bound; a heap of them all took 5 % of
+/// the dragon's run under perf. Measured side by side against the heap (`scripts/ab.sh`, one
+/// thread, identical outputs): the dragon 0.989×, the shipped sample 1.004×.
+const SELECT_BATCH: usize = 8;
 
 /// Reusable per-thread scratch space.
 #[derive(Default)]
 pub struct Scratch {
     /// The buffer of a search's triangles within reach, by (bound, index).
-    order: Vec<Reverse<(i64, u32)>>,
+    order: Vec<(i64, u32)>,
     found: Vec<DVec3>,
     /// Faces a caller's searches read beyond its own set (the decimator's footprint of a
     /// candidate, [`find_primary_recording`]), each once; the caller takes them with
@@ -771,7 +776,8 @@ fn search_primary(
         Some((_, h)) if !strict => dmax.min(h.d.abs() + tie),
         _ => open,
     };
-    // A scan or a heap, not a sort: the search mostly stops after a few triangles.
+    // A scan, then an order by bound only as far as it is read: the search mostly stops after
+    // a few triangles.
     let mut order = std::mem::take(&mut scratch.order);
     order.clear();
     // A recording search passes over the faces beyond the larger of the two reaches.
@@ -791,7 +797,7 @@ fn search_primary(
                 scratch.pending.push((tris.ids[t], b));
             }
             if b <= reach && !hinted(t, hint.len()) {
-                order.push(Reverse((total_order_key(b), t as u32)));
+                order.push((total_order_key(b), t as u32));
             }
         }
     }
@@ -801,7 +807,7 @@ fn search_primary(
     // beyond the best hit's reach so far — no sort (the sample under perf: the heap alone took
     // 4.5 % of a run; without it 0.98× the time).
     if !strict && best.is_some() {
-        for &Reverse((key, ti)) in order.iter() {
+        for &(key, ti) in order.iter() {
             if best.is_some_and(|(_, h)| from_order_key(key) > h.d.abs() + tie) {
                 continue;
             }
@@ -810,32 +816,32 @@ fn search_primary(
         order.clear();
     }
     // No hit yet (reach dmax): the nearest first, so that a first hit culls the rest. Few: the
-    // smallest taken by a scan each time; many: off a heap. The same order.
-    let mut heap = BinaryHeap::new();
-    if order.len() > SELECT_MAX {
-        heap = BinaryHeap::from(std::mem::take(&mut order));
-    }
-    let mut next = || {
-        if !heap.is_empty() {
-            return heap.pop().map(|e| e.0);
+    // smallest taken by a scan each time; many: the next SELECT_BATCH smallest partitioned off
+    // the rest (a linear pass) and sorted, a batch at a time. The same order either way:
+    // ascending (bound, index), each key distinct.
+    let mut done = 0;
+    'visits: while done < order.len() {
+        let rest = &mut order[done..];
+        let k = if rest.len() > SELECT_MAX {
+            rest.select_nth_unstable(SELECT_BATCH - 1);
+            rest[..SELECT_BATCH].sort_unstable();
+            SELECT_BATCH
+        } else {
+            let i = (0..rest.len()).min_by_key(|&i| rest[i]).unwrap_or(0);
+            rest.swap(0, i);
+            1
+        };
+        for &(key, ti) in &rest[..k] {
+            let tb = from_order_key(key);
+            if !strict && best.is_some_and(|(_, h)| tb > h.d.abs() + tie) {
+                break 'visits;
+            }
+            visit(ti as usize, &mut best, &mut scratch.found);
         }
-        let i = order.iter().enumerate().max_by_key(|e| e.1)?.0;
-        Some(order.swap_remove(i).0)
-    };
-    while let Some((key, ti)) = next() {
-        let tb = from_order_key(key);
-        if !strict && best.is_some_and(|(_, h)| tb > h.d.abs() + tie) {
-            break;
-        }
-        visit(ti as usize, &mut best, &mut scratch.found);
+        done += k;
     }
-    // The larger buffer is kept for the next search.
-    let mut kept = heap.into_vec();
-    if kept.capacity() < order.capacity() {
-        kept = order;
-    }
-    kept.clear();
-    scratch.order = kept;
+    order.clear();
+    scratch.order = order;
     if let Some((r, margin)) = record {
         scratch.flush_reads(record_upto(r, margin, best.map(|(_, h)| h.d.abs()), tie));
     }
@@ -962,14 +968,14 @@ mod tests {
     fn a_recording_search_finds_and_records_what_the_two_passes_did() {
         // 60 scattered triangles (ids descending, so that the id order is not the index
         // order), points among them, reaches from a tight one (few triangles in reach: the
-        // scan) to dmax (many: the heap). The one-pass search must return what the record and
+        // scan) to dmax (many: ordered in batches). The one-pass search must return what the record and
         // the search did in two passes, record the same faces, and find the smallest |d| of all
         // the triangles' solutions (no two are within the tie here).
         use super::{find_primary_hinted, find_primary_recording, solve_tri, Found, NormalMode, SELECT_MAX};
         let mut rng = crate::geometry::testing::Rng(0x5DEECE66D);
         let tris = scattered_tris(&mut rng, 60, 0.6, |_| 0.4, |k| 1000 - 7 * k as u32);
         let (mode, dmax) = (NormalMode::Interpolated, 3.0);
-        let (mut hits, mut heaps, mut recorded) = (0, 0, 0);
+        let (mut hits, mut batched, mut recorded) = (0, 0, 0);
         let (mut one, mut two) = (Scratch::default(), Scratch::default());
         for i in 0..4000 {
             let x = shell_or_anywhere(&mut rng, &tris, i, 0.5);
@@ -1008,13 +1014,13 @@ mod tests {
                 .filter(|&t| crate::geometry::sphere_lower_bound(x, tris.sphere[t].0, tris.sphere[t].1) <= reach)
                 .count();
             if in_reach > SELECT_MAX {
-                heaps += 1;
+                batched += 1;
             }
         }
-        // Measured: 1,665 hits, 998 searches with more than SELECT_MAX triangles in reach (the
-        // heap), 25,543 faces recorded (60,785 when every face within the record reach was;
+        // Measured: 1,665 hits, 998 searches with more than SELECT_MAX triangles in reach (in
+        // batches), 25,543 faces recorded (60,785 when every face within the record reach was;
         // bounds 10 % below).
-        assert!(hits > 1_490 && heaps > 890 && recorded > 22_900, "{hits} hits, {heaps} searches by heap, {recorded} faces recorded");
+        assert!(hits > 1_490 && batched > 890 && recorded > 22_900, "{hits} hits, {batched} searches in batches, {recorded} faces recorded");
     }
 
     #[test]
@@ -1190,7 +1196,7 @@ mod tests {
 
     #[test]
     fn the_search_order_key_orders_as_total_cmp() {
-        // The search visits triangles by (bound, index); the heap's integer key must give the
+        // The search visits triangles by (bound, index); the integer key must give the
         // order the sort by `f64::total_cmp` gave, signed zeros and infinities included.
         let xs = [0.0, -0.0, 1e-300, 5e-324, 1.0, 0.5, 1.0 + f64::EPSILON, f64::INFINITY, -1.0, f64::MAX, 3.25e-7];
         for &a in &xs {
