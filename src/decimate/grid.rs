@@ -47,18 +47,13 @@ impl Frame {
     fn index(&self, c: [usize; 3]) -> usize {
         (c[2] * self.dims[1] + c[1]) * self.dims[0] + c[0]
     }
-    /// The cells from `a` to `b` (corners included), in the order of [`Frame::for_cells`].
+    /// The cells from `a` to `b` (corners included), x fastest.
     fn cells(&self, a: [usize; 3], b: [usize; 3]) -> impl Iterator<Item = usize> + '_ {
         (a[2]..=b[2]).flat_map(move |z| (a[1]..=b[1]).flat_map(move |y| (a[0]..=b[0]).map(move |x| self.index([x, y, z]))))
     }
-    fn for_cells(&self, a: [usize; 3], b: [usize; 3], mut f: impl FnMut(usize)) {
-        for z in a[2]..=b[2] {
-            for y in a[1]..=b[1] {
-                for x in a[0]..=b[0] {
-                    f(self.index([x, y, z]));
-                }
-            }
-        }
+    /// Calls `f` for each of [`Frame::cells`] (an internal iteration: the nested loops).
+    fn for_cells(&self, a: [usize; 3], b: [usize; 3], f: impl FnMut(usize)) {
+        self.cells(a, b).for_each(f);
     }
 }
 

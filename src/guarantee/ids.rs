@@ -84,15 +84,11 @@ impl IdIndex {
     }
 }
 
-/// Ids marked, one bit each. Every bit set is cleared again before [`sorted_unique`] returns,
-/// so a thread's set starts empty each time and only grows (to the largest id it saw / 8 bytes:
-/// 250 kB for a 2M-triangle scan).
-struct Bits {
-    words: Vec<u64>,
-}
-
 thread_local! {
-    static BITS: std::cell::RefCell<Bits> = const { std::cell::RefCell::new(Bits { words: Vec::new() }) };
+    /// Ids marked, one bit each. Every bit set is cleared again before [`sorted_unique`]
+    /// returns, so a thread's set starts empty each time and only grows (to the largest id it
+    /// saw / 8 bytes: 250 kB for a 2M-triangle scan).
+    static BITS: std::cell::RefCell<Vec<u64>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// When the marked ids span at most this many 64-bit words per id kept, reading the words in
@@ -107,7 +103,7 @@ const SCAN_WORDS_PER_ID: usize = 4;
 pub fn sorted_unique(ids: impl IntoIterator<Item = u32>, out: &mut Vec<u32>) {
     out.clear();
     BITS.with(|b| {
-        let words = &mut b.borrow_mut().words;
+        let words = &mut *b.borrow_mut();
         let (mut lo, mut hi) = (usize::MAX, 0);
         for id in ids {
             let w = (id >> 6) as usize;
