@@ -1474,7 +1474,11 @@ pub fn check_face<C: MapContext>(
 /// tests it first: placements of one collapse mostly fail at the same place.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FailAt {
+    /// A triangle whose loop is flipped (or torn at a finer depth).
     Face(u32),
+    /// A torn edge (lower, higher), walked alone when tested again. Why not its triangle, as
+    /// before: a triangle tested again walks all three edges, and the torn one is mostly not
+    /// the first (the dragon: 3 % fewer bisection midpoints in a run).
     Edge(u32, u32),
     /// A dense vertex the neighbourhood gave no solution (the region's solve, before checks).
     Vertex(u32),
@@ -1517,8 +1521,9 @@ pub fn check_alone<C: MapContext>(ctx: &C, dense: &DenseData, item: FailAt, out:
 /// again). Then two stages, as the batch pipeline has them: continuity (every edge the
 /// triangles and `edges` have, walked once in (lower, higher) order), then orientation (every
 /// triangle's loop over those walks). Each stage runs in contiguous chunks over the threads;
-/// the failure reported is the first in that order, whatever the thread count. `out` gets
-/// what the searches recorded in [`Scratch::take_reads`] and each stage's time.
+/// the failure reported is the first in that order, whatever the thread count: a tear as the
+/// torn edge, a flip as its triangle. `out` gets what the searches recorded in
+/// [`Scratch::take_reads`] and each stage's time.
 pub fn check_faces<C: MapContext + Sync>(
     ctx: &C,
     dense: &DenseData,
@@ -1528,10 +1533,14 @@ pub fn check_faces<C: MapContext + Sync>(
     out: &mut CheckOut,
 ) -> Result<(), (super::primary::Reject, FailAt)> {
     use super::primary::Reject;
-    // Where an earlier try failed (the elements of `first` that are listed).
+    // Where an earlier try failed (the elements of `first` that are listed: a triangle of
+    // `faces`, an edge of `edges` or of a triangle of `faces` that the check judges, which the
+    // continuity stage walks).
+    let judged = |f: u32| judged_maps(ctx, dense, f).is_some();
+    let of_faces = |a: u32, b: u32| dense.faces_of(a).iter().any(|&f| dense.faces[f as usize].contains(&b) && faces.binary_search(&f).is_ok() && judged(f));
     let listed = |h: &FailAt| match *h {
         FailAt::Face(f) => faces.binary_search(&f).is_ok(),
-        FailAt::Edge(a, b) => edges.binary_search(&(a, b)).is_ok(),
+        FailAt::Edge(a, b) => edges.binary_search(&(a, b)).is_ok() || of_faces(a, b),
         FailAt::Vertex(_) => false,
     };
     let hinted: Vec<FailAt> = first.unwrap_or(&[]).iter().copied().filter(listed).collect();
@@ -1540,7 +1549,6 @@ pub fn check_faces<C: MapContext + Sync>(
     hinted.iter().try_for_each(|&item| check_alone(ctx, dense, item, out).map_err(|r| (r, item)))?;
     // Continuity: every edge the walk would visit, once — the listed edges and the edges of
     // the triangles that are not skipped (exempt or unmapped) — in (lower, higher) order.
-    let judged = |f: u32| judged_maps(ctx, dense, f).is_some();
     // The triangles' edges (their walks are kept: the loops read them) as one integer key each,
     // lower vertex above higher, so that the sort compares integers (late in a run a check
     // sorts 10^5 of them); then merged with the listed edges (walked, not read), which come
@@ -1570,17 +1578,6 @@ pub fn check_faces<C: MapContext + Sync>(
     walk.extend(listed.map(|l| (l, false)));
     drop(read_keys);
     let chunks = |n: usize| super::chunks::chunk_count(n, CHECK_CHUNK_MIN, CHECK_CHUNKS_PER_THREAD);
-    let tear_at = |e: (u32, u32)| -> FailAt {
-        if edges.binary_search(&e).is_ok() {
-            return FailAt::Edge(e.0, e.1);
-        }
-        // An edge of a checked triangle: the first such triangle.
-        let f = faces.iter().copied().find(|&f| {
-            let fv = dense.faces[f as usize];
-            fv.contains(&e.0) && fv.contains(&e.1) && judged(f)
-        });
-        f.map_or(FailAt::Edge(e.0, e.1), FailAt::Face)
-    };
     let (walked, spent) = in_chunks(&walk, chunks(walk.len()), |chunk, out: &mut EdgeTable, sc: &mut CheckScratch, stop| {
         for &((a, b), read) in chunk {
             if stop() {
@@ -1588,7 +1585,7 @@ pub fn check_faces<C: MapContext + Sync>(
             }
             let Some(j) = edge_jump(ctx, dense, a, b, sc) else { continue };
             if j > 0.0 {
-                return Err((Reject::Tear, tear_at((a, b))));
+                return Err((Reject::Tear, FailAt::Edge(a, b)));
             }
             if read {
                 out.insert((a, b), &sc.edge);
