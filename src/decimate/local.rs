@@ -93,14 +93,10 @@ impl State {
         let mut ahead: Option<Vec<Option<(Reject, FailAt)>>> = None;
         for (pi, &p) in c.placements.iter().enumerate() {
             let tp = Instant::now();
-            if let Some((reason, at)) = ahead.as_ref().and_then(|a| a[pi]) {
-                self.clock.torn_at_hint();
-                note_failure(&mut first, at);
-                self.clock.failed(reason, tp);
-                first_reason.get_or_insert(reason);
-                continue;
-            }
-            let tested = if pi == 0 && ahead_worth {
+            let tested = if let Some((reason, at)) = ahead.as_ref().and_then(|a| a[pi]) {
+                self.failed_at_hint(&mut first, at);
+                Err(reason)
+            } else if pi == 0 && ahead_worth {
                 // Only a thread that steals the second job runs it (`migrated`): one thread
                 // alone tests the placements one by one, exactly as without it.
                 let (tested, spare) = rayon::join_context(
@@ -224,9 +220,14 @@ impl State {
     /// goes first in `first` again. Not strict (as [`State::unmapped_at_hint`]).
     pub(crate) fn torn_at_hint(&self, c: &Candidate, tris: &Tris, n_region: usize, first: &mut Vec<FailAt>, scratch: &mut Scratch) -> Option<Reject> {
         let (reason, at) = self.torn_hint(c, tris, n_region, first, scratch)?;
+        self.failed_at_hint(first, at);
+        Some(reason)
+    }
+
+    /// A placement failed at hinted element `at`: counted, and `at` first in the memo again.
+    fn failed_at_hint(&self, first: &mut Vec<FailAt>, at: FailAt) {
         self.clock.torn_at_hint();
         note_failure(first, at);
-        Some(reason)
     }
 
     /// [`State::torn_at_hint`]'s check without its bookkeeping: the first element of `hints`
@@ -244,7 +245,7 @@ impl State {
             let (face, mut verts) = match h {
                 FailAt::Face(f) if checked(f) && judged(f) => (f, dense.faces[f as usize].to_vec()),
                 FailAt::Edge(a, b) => {
-                    let of_judged = dense.faces_of(a).iter().copied().find(|&f| dense.faces[f as usize].contains(&b) && checked(f) && judged(f));
+                    let of_judged = dense.edge_faces(a, b).find(|&f| checked(f) && judged(f));
                     match of_judged {
                         Some(f) => (f, vec![a, b]),
                         None => continue,

@@ -1215,7 +1215,7 @@ fn face_loop<C: MapContext>(
         };
         if jump > 0.0 {
             torn = true;
-            let counted_here = a < b || dense.faces_of(a).iter().filter(|&&g| dense.faces[g as usize].contains(&b)).count() < 2;
+            let counted_here = a < b || dense.edge_faces(a, b).count() < 2;
             if counted_here && min_depth == 0 {
                 if jump.is_finite() {
                     stats.jump_edges += 1;
@@ -1537,7 +1537,7 @@ pub fn check_faces<C: MapContext + Sync>(
     // `faces`, an edge of `edges` or of a triangle of `faces` that the check judges, which the
     // continuity stage walks).
     let judged = |f: u32| judged_maps(ctx, dense, f).is_some();
-    let of_faces = |a: u32, b: u32| dense.faces_of(a).iter().any(|&f| dense.faces[f as usize].contains(&b) && faces.binary_search(&f).is_ok() && judged(f));
+    let of_faces = |a: u32, b: u32| dense.edge_faces(a, b).any(|f| faces.binary_search(&f).is_ok() && judged(f));
     let listed = |h: &FailAt| match *h {
         FailAt::Face(f) => faces.binary_search(&f).is_ok(),
         FailAt::Edge(a, b) => edges.binary_search(&(a, b)).is_ok() || of_faces(a, b),

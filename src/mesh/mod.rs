@@ -465,14 +465,14 @@ impl DenseData {
         let t = self.faces[f as usize];
         !self.exempt_edges.is_empty() && (0..3).any(|k| self.is_exempt_edge(t[k], t[(k + 1) % 3]))
     }
+    /// The (one or two) faces on edge (a, b).
+    pub fn edge_faces(&self, a: u32, b: u32) -> impl Iterator<Item = u32> + '_ {
+        self.faces_of(a).iter().copied().filter(move |&f| self.faces[f as usize].contains(&b))
+    }
     /// Unit normals of the (one or two) faces on edge (a, b).
     pub fn edge_normals(&self, a: u32, b: u32, out: &mut Vec<DVec3>) {
         out.clear();
-        for &f in self.faces_of(a) {
-            if self.faces[f as usize].contains(&b) {
-                out.push(self.normal[f as usize]);
-            }
-        }
+        out.extend(self.edge_faces(a, b).map(|f| self.normal[f as usize]));
     }
 }
 
