@@ -12,7 +12,7 @@ use crate::decimate::{Candidate, NearRule, State};
 use crate::guarantee::chunks::{chunk_count, flat_map_chunks, run_to_first_failure};
 use crate::guarantee::ids::{merge_sorted, sorted_unique, IdIndex};
 use super::outcome::{Accepted, Outcome, Rejected};
-use crate::guarantee::{check_alone, check_faces, find_primary, find_primary_capped, find_primary_near_first, find_primary_recording, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
+use crate::guarantee::{check_alone, check_faces, find_primary, find_primary_capped, find_primary_near_first, find_primary_recording, find_primary_widening, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
 use crate::geometry::{beyond_box, face_cross, vertex_direction};
 use crate::decimate::stages::Stage;
 use std::time::Instant;
@@ -435,12 +435,19 @@ impl State {
         self.clock.add(Stage::Continuity, out.continuity_ns);
         self.clock.add(Stage::Orientation, out.orientation_ns);
         self.clock.work(&out.work);
-        let reads = out.reads;
+        let mut reads = out.reads;
         if let Err((reason, at)) = r {
             if self.fail_hints {
                 note_failure(first, at);
             }
             return Err(reason);
+        }
+        if !out.deferred.is_empty() {
+            let t = Instant::now();
+            let mut sc = Scratch::default();
+            ctx.record_deferred(&out.deferred, &mut sc);
+            reads.append(&mut sc.take_reads());
+            self.clock.lap(Stage::Continuity, t);
         }
         let mut read_faces = Vec::new();
         sorted_unique(reads, &mut read_faces);
@@ -916,6 +923,42 @@ enum CheckMaps<'a> {
     Few(&'a [(u32, Map)]),
 }
 
+impl CandidateContext<'_> {
+    /// The live faces whose boxes lie within `r` of x (from the face grid, a face once per cell
+    /// it has in the cube). Why the box test: most of what a cell holds around a point of small
+    /// reach lies beyond it, and a search would skip it (the shipped sample 0.87x the time).
+    fn grid_faces(&self, x: DVec3, r: f64, out: &mut Vec<u32>) {
+        let st = self.st;
+        let near_box = |f: u32| st.topo.face_alive(f) && !beyond_box(x, &st.topo.face(f).map(|v| st.pos[v as usize]), r);
+        st.face_grid.query_where(x - DVec3::splat(r), x + DVec3::splat(r), near_box, out);
+    }
+
+    /// A grid face's triangle where a point's search has not met it already (in the
+    /// neighbourhood, or the outer set `outer`; the region's old faces are gone).
+    fn grid_info(&self, outer: &Outer, f: u32) -> Option<FaceInfo> {
+        let searched = self.tris.index_of(f).is_some() || outer.holds(f) || self.c.region.binary_search(&f).is_ok();
+        (!searched).then(|| self.st.face_info_current(f))
+    }
+
+    /// Makes the records the check put off ([`crate::guarantee::DeferredRecord`]), into
+    /// `scratch`'s read record: the faces [`find_primary_near_first`] would have recorded.
+    fn record_deferred(&self, deferred: &[crate::guarantee::DeferredRecord], scratch: &mut Scratch) {
+        let Some(outer) = self.outer.get() else { return };
+        let mut faces = Vec::new();
+        for r in deferred {
+            self.grid_faces(r.x, r.reach + r.margin, &mut faces);
+            crate::guarantee::record_near(r, &faces, |f| self.grid_info(outer, f), self.st.dmax, scratch);
+        }
+    }
+
+    /// Whether what the check's searches read is kept (the candidate's footprint): not for an
+    /// element checked alone ([`CheckMaps::Few`]), whose verdict alone counts — its placement
+    /// fails on it, or is then tested in full.
+    fn records(&self) -> bool {
+        matches!(self.maps, CheckMaps::Region { .. })
+    }
+}
+
 impl CheckMaps<'_> {
     /// Vertex `v`'s map as the check sees it (a pinched vertex's too).
     fn get(&self, st: &State, c: &Candidate, v: u32) -> Map {
@@ -1048,33 +1091,40 @@ impl MapContext for CandidateContext<'_> {
         let far = outer.tris_for(st, x, reach + m);
         best = pick(best, far, find_primary_recording(x, normals, far, st.mode, reach.min(st.dmax), reach, m, &hint(far), scratch));
         let reach = best.map_or(st.dmax, |h| h.d.abs() + tie);
-        let (blo, bhi) = (x - DVec3::splat(reach + m), x + DVec3::splat(reach + m));
-        if !outer.covers(x, reach + m) {
-            // Often a point with no hit yet, whose reach is dmax: thousands of faces lie within
-            // it, so the faces near it go first ([`find_primary_near_first`]: the same answer
-            // and record; the shipped sample 0.85x the time), in the scratch's buffers, not fresh
-            // ones (0.82x).
-            scratch.work.grid_searches += 1;
-            let mut buf = scratch.take_point_buffers();
+        // Every face within the reach (plus the margin, for the record) has been met where the
+        // box holds its cube (the faces there are the outer set's or the neighbourhood's);
+        // beyond the box, a grid query of this point's own.
+        let records = self.records();
+        if outer.covers(x, if records { reach + m } else { reach }) {
+            return best;
+        }
+        scratch.work.grid_searches += 1;
+        let mut buf = scratch.take_point_buffers();
+        let first = FAR_FIRST_REACH_REL * st.dmax;
+        let found = if !records || best.is_none() {
+            // A verdict alone (no record kept), or no hit yet (reach dmax: thousands of faces
+            // within it, and such a point mostly belongs to a placement that fails — a torn
+            // edge's midpoint whose primary lies on a thin part's other side): the faces nearest
+            // first, widening, without a record; where it is kept, the record is made when the
+            // check passes ([`crate::guarantee::DeferredRecord`]). The dragon: such points took
+            // 1.7 ms each, 7 s of its 83 CPU s; widening, 0.6 ms.
+            let found = find_primary_widening(x, normals, &mut buf.faces, |r, out| self.grid_faces(x, r, out), |f| self.grid_info(outer, f), |f, fi| st.bounds_with(f, fi), st.mode, st.dmax, reach, first, [fa, fb], &mut buf.tris, scratch);
+            if records {
+                scratch.defer_record(crate::guarantee::DeferredRecord { x, reach, margin: m, hit: found.map(|(_, h)| h.d.abs()) });
+            }
+            found
+        } else {
+            // The faces near it first ([`find_primary_near_first`]: the same answer and record;
+            // the shipped sample 0.85x the time), in the scratch's buffers, not fresh ones
+            // (0.82x).
+            self.grid_faces(x, reach + m, &mut buf.faces);
             let corners = |f: u32| st.topo.face(f).map(|v| st.pos[v as usize]);
-            // The faces whose box lies beyond the reach are passed over first (most of what
-            // a cell holds around a point of small reach): the search would skip them. With the
-            // recorded faces tested by box alone, the sample 0.87x the time again.
-            let near_box = |f: u32| st.topo.face_alive(f) && !beyond_box(x, &corners(f), reach + m);
-            st.face_grid.query_where(blo, bhi, near_box, &mut buf.faces);
-            // Faces beyond the neighbourhood (the region's old faces are gone) and the outer set
-            // (the cull above kept live faces only).
-            let info = |f: u32| {
-                let searched = self.tris.index_of(f).is_some() || outer.holds(f) || self.c.region.binary_search(&f).is_ok();
-                (!searched).then(|| st.face_info_current(f))
-            };
-            let first = FAR_FIRST_REACH_REL * st.dmax;
-            let found = find_primary_near_first(
+            find_primary_near_first(
                 x,
                 normals,
                 &mut buf.faces,
                 corners,
-                info,
+                |f| self.grid_info(outer, f),
                 |f, fi| st.bounds_with(f, fi),
                 st.mode,
                 st.dmax,
@@ -1085,13 +1135,13 @@ impl MapContext for CandidateContext<'_> {
                 &mut buf.tris,
                 &mut buf.near,
                 scratch,
-            );
-            if let Some((f, h)) = found {
-                if best.is_none_or(|cur| crate::guarantee::preferred(h.d.abs(), f, cur.d.abs(), cur.face)) {
-                    best = Some(Map { face: f, bary: h.bary, d: h.d });
-                }
+            )
+        };
+        scratch.keep_point_buffers(buf);
+        if let Some((f, h)) = found {
+            if best.is_none_or(|cur| crate::guarantee::preferred(h.d.abs(), f, cur.d.abs(), cur.face)) {
+                best = Some(Map { face: f, bary: h.bary, d: h.d });
             }
-            scratch.keep_point_buffers(buf);
         }
         best
     }

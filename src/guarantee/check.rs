@@ -732,7 +732,7 @@ fn polygon_positive_in(pts: &[DVec2], q: &mut Vec<DVec2>) -> bool {
 /// `None`: no chart holds the loop (its consecutive samples' faces neither share an edge nor lie
 /// in one star); the caller decides.
 pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample], charts: &mut ChartScratch) -> Option<(bool, Chart)> {
-    let ChartScratch { index, faces, cands, pts, polar, th, laid, q } = charts;
+    let ChartScratch { index, faces, cands, pts, polar, th, laid, q, on_star, best_on } = charts;
     faces.clear();
     faces.extend(lp.iter().map(|s| s.m.face));
     // Mostly one label (a loop inside one base face): no sort.
@@ -786,7 +786,7 @@ pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample], charts: &mut ChartSc
     cands.extend(faces.iter().flat_map(|&f| ctx.face_info(f).verts));
     cands.sort_unstable();
     cands.dedup();
-    let mut best: Option<(f64, u32, DVec3)> = None;
+    let mut best: Option<(f64, u32)> = None;
     for &w in cands.iter() {
         // A sample inside a face (three vertices carry it) lies in w's star only on a face of
         // w: passed over first, without the face lookups of the full test.
@@ -794,17 +794,20 @@ pub fn loop_positive<C: MapContext>(ctx: &C, lp: &[Sample], charts: &mut ChartSc
         if lp.iter().any(inside_elsewhere) {
             continue;
         }
-        if lp.iter().all(|s| star_face(ctx, s, w).is_some()) {
-            let pw = vertex_position(ctx, w, lp);
+        if star_faces(ctx, lp, w, on_star).is_some() {
+            // w's position: on the first sample's face of w's star.
+            let info = ctx.face_info(on_star[0].0);
+            let pw = info.verts.iter().position(|&v| v == w).map_or(DVec3::ZERO, |k| info.pos[k]);
             let dist = pw.distance(centroid);
             if best.is_none_or(|b| dist < b.0) {
-                best = Some((dist, w, pw));
+                best = Some((dist, w));
+                std::mem::swap(on_star, best_on);
             }
         }
     }
-    if let Some((_, w, _)) = best {
+    if let Some((_, w)) = best {
         if let Some(star) = index.entry(w).or_insert_with(|| star_of(ctx, w)).as_ref() {
-            if star_chart(ctx, star, w, lp, polar, th, pts).is_some() {
+            if star_chart(star, best_on, polar, th, pts).is_some() {
                 return Some((polygon_positive_in(pts, q), Chart::Star));
             }
         }
@@ -849,16 +852,14 @@ fn star_face<C: MapContext>(ctx: &C, s: &Sample, w: u32) -> Option<(u32, [f64; 3
     on_face(&s.verts, &s.m.bary, &t).map(|b| (f, b))
 }
 
-fn vertex_position<C: MapContext>(ctx: &C, w: u32, lp: &[Sample]) -> DVec3 {
+/// The face of `w`'s star on which each sample of `lp` lies, with its barycentrics there
+/// ([`star_face`]), into `out`; `None` where one lies outside the star.
+fn star_faces<C: MapContext>(ctx: &C, lp: &[Sample], w: u32, out: &mut Vec<(u32, [f64; 3])>) -> Option<()> {
+    out.clear();
     for s in lp {
-        if let Some((f, _)) = star_face(ctx, s, w) {
-            let info = ctx.face_info(f);
-            if let Some(k) = info.verts.iter().position(|&v| v == w) {
-                return info.pos[k];
-            }
-        }
+        out.push(star_face(ctx, s, w)?);
     }
-    DVec3::ZERO
+    Some(())
 }
 
 /// The faces around base vertex `w` in fan order (each next face shares the edge (w, b) of the
@@ -898,6 +899,8 @@ fn ordered_fan<C: MapContext>(ctx: &C, w: u32) -> Option<(Vec<u32>, bool)> {
 /// One face of a base vertex's fan as the polar chart lays it out.
 struct Wedge {
     face: u32,
+    /// The face's corners (as [`MapContext::face_info`] gives them).
+    pos: [DVec3; 3],
     pw: DVec3,
     e1: DVec3,
     n: DVec3,
@@ -925,7 +928,7 @@ fn star_of<C: MapContext>(ctx: &C, w: u32) -> Option<Star> {
         let (ua, ub) = (pa - pw, pb - pw);
         let n = geometry::face_normal(info.pos[0], info.pos[1], info.pos[2]);
         let angle = ua.cross(ub).length().atan2(ua.dot(ub));
-        wedges.push(Wedge { face: f, pw, e1: ua.normalize_or_zero(), n, angle, start: 0.0 });
+        wedges.push(Wedge { face: f, pos: info.pos, pw, e1: ua.normalize_or_zero(), n, angle, start: 0.0 });
     }
     let mut total = 0.0;
     for wg in &mut wedges {
@@ -949,33 +952,27 @@ pub struct ChartScratch {
     /// The triangles a pair or chain chart has laid out.
     laid: Vec<([u32; 3], [DVec2; 3])>,
     q: Vec<DVec2>,
+    /// A loop's faces and barycentrics in the star of a vertex ([`star_faces`]): the vertex
+    /// tried now, and the best so far.
+    on_star: Vec<(u32, [f64; 3])>,
+    best_on: Vec<(u32, [f64; 3])>,
 }
 
-/// The loop in the polar chart of vertex `w`: a point at distance r from w, at angle θ from the
+/// The loop in the polar chart of vertex `w` (`star`), its samples given by their faces and
+/// barycentrics in the star ([`star_faces`]): a point at distance r from w, at angle θ from the
 /// fan's first edge (angles summed face by face around w), goes to r·(cos cθ, sin cθ), with
 /// c = 2π / (angle sum) around an interior vertex (continuous all the way round) and
 /// c = min(1, 1.5π / angle sum) at a boundary vertex. The map is one-to-one and
 /// orientation-preserving on the star, so a loop in it is simple and positive exactly when it
 /// is so on L.
-#[allow(clippy::too_many_arguments)]
-fn star_chart<C: MapContext>(
-    ctx: &C,
-    star: &Star,
-    w: u32,
-    lp: &[Sample],
-    polar: &mut Vec<(f64, f64)>,
-    th: &mut Vec<f64>,
-    pts: &mut Vec<DVec2>,
-) -> Option<()> {
+fn star_chart(star: &Star, on_star: &[(u32, [f64; 3])], polar: &mut Vec<(f64, f64)>, th: &mut Vec<f64>, pts: &mut Vec<DVec2>) -> Option<()> {
     let Star { wedges, total, closed } = star;
     let (total, closed) = (*total, *closed);
     // Polar coordinates (r, θ) of every sample, θ summed face by face from the fan's start.
     polar.clear();
-    for s in lp {
-        let (f, bary) = star_face(ctx, s, w)?;
+    for &(f, bary) in on_star {
         let wg = wedges.iter().find(|x| x.face == f)?;
-        let info = ctx.face_info(f);
-        let r = interpolate_direction(&info.pos, &bary) - wg.pw;
+        let r = interpolate_direction(&wg.pos, &bary) - wg.pw;
         let rl = r.length();
         let phi = if rl == 0.0 { 0.0 } else { wg.e1.cross(r).dot(wg.n).atan2(wg.e1.dot(r)).clamp(0.0, wg.angle) };
         polar.push((rl, wg.start + phi));
@@ -1204,11 +1201,13 @@ fn face_loop<C: MapContext>(
 ) -> bool {
     sc.lp.clear();
     let mut torn = false;
+    // Where the walks are shared, the corners' loop samples, made once for the three edges.
+    let corners = (min_depth == 0 && sc.shared.is_some()).then(|| m.map(|mk| loop_sample(ctx, mk)));
     for k in 0..3 {
         let (a, b) = (fv[k], fv[(k + 1) % 3]);
         let (ka, kb) = (k, (k + 1) % 3);
         let (lo, hi, klo, khi) = if a < b { (a, b, ka, kb) } else { (b, a, kb, ka) };
-        let cached = if min_depth == 0 { sc.cached_edge(ctx, (lo, m[klo]), (hi, m[khi])) } else { None };
+        let cached = corners.and_then(|c| sc.cached_edge((lo, c[klo]), (hi, c[khi])));
         let jump = match cached {
             Some(j) => j,
             None => walk_edge(ctx, dense, (lo, m[klo]), (hi, m[khi]), min_depth, sc),
@@ -1271,6 +1270,9 @@ pub struct CheckOut {
     pub orientation_ns: u64,
     /// What the walks did ([`PointWork`]), summed over the chunks.
     pub work: super::primary::PointWork,
+    /// Records the searches put off ([`super::primary::DeferredRecord`]): part of the footprint
+    /// where the check passes.
+    pub deferred: Vec<super::primary::DeferredRecord>,
 }
 
 /// What one stretch of a check spent: the faces its searches read, its nanoseconds and what its
@@ -1278,6 +1280,7 @@ pub struct CheckOut {
 #[derive(Default)]
 struct Spent {
     reads: Vec<u32>,
+    deferred: Vec<super::primary::DeferredRecord>,
     ns: u64,
     work: super::primary::PointWork,
 }
@@ -1285,10 +1288,11 @@ struct Spent {
 impl Spent {
     /// What `scratch` recorded since it was last taken, and the time since `since`.
     fn take(scratch: &mut Scratch, since: std::time::Instant) -> Spent {
-        Spent { reads: scratch.take_reads(), ns: since.elapsed().as_nanos() as u64, work: std::mem::take(&mut scratch.work) }
+        Spent { reads: scratch.take_reads(), deferred: scratch.take_deferred(), ns: since.elapsed().as_nanos() as u64, work: std::mem::take(&mut scratch.work) }
     }
     fn add(&mut self, o: Spent) {
         self.reads.extend_from_slice(&o.reads);
+        self.deferred.extend_from_slice(&o.deferred);
         self.ns += o.ns;
         self.work.add(&o.work);
     }
@@ -1298,6 +1302,7 @@ impl CheckOut {
     /// Adds a stretch's reads and walks; returns its nanoseconds, for the stage's clock.
     fn absorb(&mut self, mut s: Spent) -> u64 {
         self.reads.append(&mut s.reads);
+        self.deferred.append(&mut s.deferred);
         self.work.add(&s.work);
         s.ns
     }
@@ -1355,16 +1360,16 @@ pub struct CheckScratch {
 }
 
 impl CheckScratch {
-    /// The image of edge (a, b) (a < b; maps `ma`, `mb`) from the walked edges into
-    /// `self.edge`, for a loop: the stored inner samples between the ends' [`loop_sample`]s.
+    /// The image of edge (a, b) (a < b; `sa`, `sb` the ends' [`loop_sample`]s) from the walked
+    /// edges into `self.edge`, for a loop: the stored inner samples between the ends' samples.
     /// `None` where no walk is shared; otherwise the edge is continuous (jump 0).
-    fn cached_edge<C: MapContext>(&mut self, ctx: &C, (a, ma): (u32, Map), (b, mb): (u32, Map)) -> Option<f64> {
+    fn cached_edge(&mut self, (a, sa): (u32, Sample), (b, sb): (u32, Sample)) -> Option<f64> {
         let CheckScratch { shared, edge, .. } = self;
         let table = shared.as_deref()?;
         edge.clear();
-        edge.push(loop_sample(ctx, ma));
+        edge.push(sa);
         edge.extend_from_slice(table.inner((a, b)));
-        edge.push(loop_sample(ctx, mb));
+        edge.push(sb);
         Some(0.0)
     }
 }
@@ -1523,7 +1528,8 @@ pub fn check_alone<C: MapContext>(ctx: &C, dense: &DenseData, item: FailAt, out:
 /// triangle's loop over those walks). Each stage runs in contiguous chunks over the threads;
 /// the failure reported is the first in that order, whatever the thread count: a tear as the
 /// torn edge, a flip as its triangle. `out` gets what the searches recorded in
-/// [`Scratch::take_reads`] and each stage's time.
+/// [`Scratch::take_reads`], the records they put off ([`CheckOut::deferred`]) and each stage's
+/// time.
 pub fn check_faces<C: MapContext + Sync>(
     ctx: &C,
     dense: &DenseData,
@@ -2082,9 +2088,10 @@ mod tests {
         let rev: Vec<Sample> = lp.iter().rev().copied().collect();
         assert_eq!(loop_positive(&ctx, &rev, &mut charts), Some((false, Chart::Pair)));
         let star = star_of(&ctx, 4).unwrap();
-        let (mut polar, mut th, mut out) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut polar, mut th, mut out, mut on_star) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for (l, want) in [(&lp, true), (&rev, false)] {
-            star_chart(&ctx, &star, 4, l, &mut polar, &mut th, &mut out).unwrap();
+            star_faces(&ctx, l, 4, &mut on_star).unwrap();
+            star_chart(&star, &on_star, &mut polar, &mut th, &mut out).unwrap();
             assert_eq!(polygon_positive(&out), want);
         }
     }
