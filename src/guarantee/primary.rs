@@ -704,17 +704,23 @@ pub fn find_primary_near_first(
         scratch.flush_reads(record_upto(reach, margin, found.map(|(_, h)| h.d.abs()), tie));
         return found;
     }
+    faces_within(x, faces, &info, &bounds, reach, t);
+    search(t, Some((reach, margin)), scratch)
+}
+
+/// The faces of `faces` (sorted in place, repeats dropped) that `info` gives and whose
+/// triangles lie within `r` of x, prepared in `t` in ascending id.
+fn faces_within(x: DVec3, faces: &mut Vec<u32>, info: impl Fn(u32) -> Option<FaceInfo>, bounds: impl Fn(u32, &FaceInfo) -> TriBounds, r: f64, t: &mut Tris) {
     faces.sort_unstable();
     faces.dedup();
     t.clear();
     for &f in faces.iter() {
         let Some(fi) = info(f) else { continue };
-        if triangle_distance(x, &fi.pos) <= reach {
+        if triangle_distance(x, &fi.pos) <= r {
             t.push_with(f, fi.verts, fi.pos, fi.dir, &bounds(f, &fi));
         }
     }
     t.finish();
-    search(t, Some((reach, margin)), scratch)
 }
 
 /// [`find_primary_near_first`]'s hit (its face id and solution, bit for bit) for a search whose
@@ -783,16 +789,7 @@ pub fn find_primary_widening(
     let mut r = first.min(reach);
     loop {
         query(r, faces);
-        faces.sort_unstable();
-        faces.dedup();
-        t.clear();
-        for &f in faces.iter() {
-            let Some(fi) = info(f) else { continue };
-            if triangle_distance(x, &fi.pos) <= r {
-                t.push_with(f, fi.verts, fi.pos, fi.dir, &bounds(f, &fi));
-            }
-        }
-        t.finish();
+        faces_within(x, faces, &info, &bounds, r, t);
         let hint_in = hint.map(|f| t.index_of(f).unwrap_or(usize::MAX));
         let found = match search_primary(x, normals, t, mode, reach.min(dmax), reach.min(dmax), true, false, &hint_in, None, scratch) {
             Found::Hit(i, h) => Some((t.ids[i], h)),
