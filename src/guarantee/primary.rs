@@ -658,12 +658,7 @@ pub fn find_primary_near_first(
     scratch: &mut Scratch,
 ) -> Option<(u32, ShellHit)> {
     let tie = SAME_SOLUTION_REL * dmax;
-    let hint_in = |t: &Tris| hint.map(|f| t.index_of(f).unwrap_or(usize::MAX));
-    // A search of `t` (recording within `record`, if any): its hit by face id.
-    let search = |t: &Tris, record: Option<(f64, f64)>, scratch: &mut Scratch| match search_primary(x, normals, t, mode, reach.min(dmax), reach.min(dmax), true, false, &hint_in(t), record, scratch) {
-        Found::Hit(i, h) => Some((t.ids[i], h)),
-        _ => None,
-    };
+    let search = |t: &Tris, record: Option<(f64, f64)>, scratch: &mut Scratch| search_by_id(x, normals, t, mode, dmax, reach, hint, record, scratch);
     near.clear();
     let mut beyond_first = false;
     for &f in faces.iter() {
@@ -678,10 +673,7 @@ pub fn find_primary_near_first(
             continue;
         }
         if !recorded {
-            let sphere = triangle_sphere(&fi.pos);
-            if recorded_within(x, sphere, reach + margin) {
-                scratch.pending.push((f, sphere_lower_bound(x, sphere.0, sphere.1)));
-            }
+            pend_within(x, f, &fi.pos, reach + margin, scratch);
         }
         if dist > reach {
             continue; // recorded (perhaps), not searched
@@ -708,6 +700,27 @@ pub fn find_primary_near_first(
     search(t, Some((reach, margin)), scratch)
 }
 
+/// A search of `t` over the reach `reach` (≤ dmax; recording within `record`, if any) with the
+/// faces `hint` visited first: its hit by face id.
+#[allow(clippy::too_many_arguments)]
+fn search_by_id(x: DVec3, normals: &[DVec3], t: &Tris, mode: NormalMode, dmax: f64, reach: f64, hint: [u32; 2], record: Option<(f64, f64)>, scratch: &mut Scratch) -> Option<(u32, ShellHit)> {
+    let hint_in = hint.map(|f| t.index_of(f).unwrap_or(usize::MAX));
+    match search_primary(x, normals, t, mode, reach.min(dmax), reach.min(dmax), true, false, &hint_in, record, scratch) {
+        Found::Hit(i, h) => Some((t.ids[i], h)),
+        _ => None,
+    }
+}
+
+/// Face `f` (corners `pos`) put in `scratch`'s pending record with its sphere bound where its
+/// sphere comes within `lim` of x ([`recorded_within`]): the near-first search's record and
+/// the one made later ([`record_near`]) alike.
+fn pend_within(x: DVec3, f: u32, pos: &[DVec3; 3], lim: f64, scratch: &mut Scratch) {
+    let sphere = triangle_sphere(pos);
+    if recorded_within(x, sphere, lim) {
+        scratch.pending.push((f, sphere_lower_bound(x, sphere.0, sphere.1)));
+    }
+}
+
 /// The faces of `faces` (sorted in place, repeats dropped) that `info` gives and whose
 /// triangles lie within `r` of x, prepared in `t` in ascending id.
 fn faces_within(x: DVec3, faces: &mut Vec<u32>, info: impl Fn(u32) -> Option<FaceInfo>, bounds: impl Fn(u32, &FaceInfo) -> TriBounds, r: f64, t: &mut Tris) {
@@ -723,15 +736,6 @@ fn faces_within(x: DVec3, faces: &mut Vec<u32>, info: impl Fn(u32) -> Option<Fac
     t.finish();
 }
 
-/// [`find_primary_near_first`]'s hit (its face id and solution, bit for bit) for a search whose
-/// record is not kept: over the faces within `first` of x, then within twice that, and so on up
-/// to `reach`, each step's hit final once its |d| plus the tie stays within the step's radius (a
-/// farther face holds no solution with a smaller |d|: |x − X| ≤ |d|·|N| ≤ |d|; a root within
-/// range has the same bits whatever a search's reach). `query(r, faces)` lists the faces whose
-/// triangles may lie within r of x (any order, repeats allowed); `info(f)` gives a face's
-/// triangle, `None` for one outside the search. Why not the near-first search: a point with no
-/// hit nearby (a midpoint of a torn edge whose primary lies on a thin part's other side) looks
-/// at every face within dmax there — the dragon: ~7,000 faces, 1.8 ms a point.
 /// The record of a [`find_primary_near_first`] search over a grid's faces, put off: its point,
 /// reach and margin, and the |d| of its hit. A caller that finds the hit by
 /// [`find_primary_widening`] instead (no record) and keeps the record only where the check
@@ -761,14 +765,20 @@ pub fn record_near(r: &DeferredRecord, faces: &[u32], info: impl Fn(u32) -> Opti
         if triangle_distance(x, &fi.pos) > lim {
             continue;
         }
-        let sphere = triangle_sphere(&fi.pos);
-        if recorded_within(x, sphere, lim) {
-            scratch.pending.push((f, sphere_lower_bound(x, sphere.0, sphere.1)));
-        }
+        pend_within(x, f, &fi.pos, lim, scratch);
     }
     scratch.flush_reads(record_upto(r.reach, r.margin, r.hit, SAME_SOLUTION_REL * dmax));
 }
 
+/// [`find_primary_near_first`]'s hit (its face id and solution, bit for bit) for a search whose
+/// record is not kept: over the faces within `first` of x, then within twice that, and so on up
+/// to `reach`, each step's hit final once its |d| plus the tie stays within the step's radius (a
+/// farther face holds no solution with a smaller |d|: |x − X| ≤ |d|·|N| ≤ |d|; a root within
+/// range has the same bits whatever a search's reach). `query(r, faces)` lists the faces whose
+/// triangles may lie within r of x (any order, repeats allowed); `info(f)` gives a face's
+/// triangle, `None` for one outside the search. Why not the near-first search: a point with no
+/// hit nearby (a midpoint of a torn edge whose primary lies on a thin part's other side) looks
+/// at every face within dmax there — the dragon: ~7,000 faces, 1.8 ms a point.
 #[allow(clippy::too_many_arguments)]
 pub fn find_primary_widening(
     x: DVec3,
@@ -790,11 +800,7 @@ pub fn find_primary_widening(
     loop {
         query(r, faces);
         faces_within(x, faces, &info, &bounds, r, t);
-        let hint_in = hint.map(|f| t.index_of(f).unwrap_or(usize::MAX));
-        let found = match search_primary(x, normals, t, mode, reach.min(dmax), reach.min(dmax), true, false, &hint_in, None, scratch) {
-            Found::Hit(i, h) => Some((t.ids[i], h)),
-            _ => None,
-        };
+        let found = search_by_id(x, normals, t, mode, dmax, reach, hint, None, scratch);
         if r >= reach || found.is_some_and(|(_, h)| h.d.abs() + tie <= r) {
             return found;
         }
