@@ -118,6 +118,7 @@ impl RunResult {
                 pick_s: r.time.pick_s,
                 evaluate_s: r.time.evaluate_s,
                 commit_s: r.time.commit_s,
+                slowest_s: r.collapses.time_slowest_candidates_s,
                 recheck_s: r.time.recheck_s,
                 global_s: r.time.global_s,
                 total_s: r.time.total_s,
@@ -177,6 +178,9 @@ pub struct Phases {
     pub pick_s: f64,
     pub evaluate_s: f64,
     pub commit_s: f64,
+    /// Σ over rounds of each round's slowest candidate (report's
+    /// `collapses.time_slowest_candidates_s`; 0 on the GPU path).
+    pub slowest_s: f64,
     pub recheck_s: f64,
     pub global_s: f64,
     pub total_s: f64,
@@ -196,6 +200,7 @@ impl Phases {
             pick_s: m(|p| p.pick_s),
             evaluate_s: m(|p| p.evaluate_s),
             commit_s: m(|p| p.commit_s),
+            slowest_s: m(|p| p.slowest_s),
             recheck_s: m(|p| p.recheck_s),
             global_s: m(|p| p.global_s),
             total_s: m(|p| p.total_s),
@@ -439,12 +444,13 @@ pub fn table(r: &BenchReport) -> String {
             row.ratio_to_meshopt
         );
     }
-    // Where the time goes: the candidate test's stages (CPU seconds summed over threads) and
-    // the serial pick and commit (wall seconds), medians.
+    // Where the time goes: the candidate test's stages (CPU seconds summed over threads), the
+    // serial pick and commit, and the evaluation's wall against its rounds' slowest candidates
+    // (wall seconds), medians.
     if let Some(first) = r.rows.first() {
         let names: Vec<&str> = first.median.stages_cpu_s.iter().map(|(n, _)| n.as_str()).collect();
-        s += &format!("\nstages (median s; the test's stages are CPU seconds summed over threads)\n\n| mesh | path | {} | pick | commit | 1 → {} threads |\n", names.join(" | "), r.cores);
-        s += &format!("|---|---|{}---:|---:|---:|\n", "---:|".repeat(names.len()));
+        s += &format!("\nstages (median s; the test's stages are CPU seconds summed over threads)\n\n| mesh | path | {} | pick | commit | evaluate (rounds' slowest) | 1 → {} threads |\n", names.join(" | "), r.cores);
+        s += &format!("|---|---|{}---:|---:|---:|---:|\n", "---:|".repeat(names.len()));
         for row in &r.rows {
             let m = &row.median;
             let stages: Vec<String> = m.stages_cpu_s.iter().map(|(_, v)| format!("{v:.2}")).collect();
@@ -457,7 +463,7 @@ pub fn table(r: &BenchReport) -> String {
                     .map_or("-".into(), |o| format!("{:.2}×", o.median.total_s / m.total_s)),
                 _ => "-".into(),
             };
-            s += &format!("| {} | {} | {} | {:.2} | {:.2} | {} |\n", row.mesh, row.config.name(), stages.join(" | "), m.pick_s, m.commit_s, speedup);
+            s += &format!("| {} | {} | {} | {:.2} | {:.2} | {:.2} ({:.2}) | {} |\n", row.mesh, row.config.name(), stages.join(" | "), m.pick_s, m.commit_s, m.evaluate_s, m.slowest_s, speedup);
         }
     }
     for sk in &r.skipped {

@@ -127,6 +127,11 @@ pub struct Stats {
     pub time_pick_s: f64,
     pub time_evaluate_s: f64,
     pub time_commit_s: f64,
+    /// Σ over rounds of the round's slowest candidate (its whole test, on the thread that ran
+    /// it; CPU evaluator only, 0 on the GPU path): near `time_evaluate_s`, the rounds wait for
+    /// one candidate each, and more threads help only where that candidate's own check splits
+    /// over them. For a round of one it is the whole evaluation.
+    pub time_slowest_candidates_s: f64,
     /// Where the candidate test's CPU time went (filled at the end of a run).
     pub stages: crate::decimate::stages::StageSummary,
 }
@@ -633,6 +638,7 @@ impl State {
             self.round_move = round_move(&self.pos, &batch);
             let outcomes = evaluator.evaluate(self, &batch)?;
             let t2 = Instant::now();
+            self.stats.time_slowest_candidates_s += self.clock.take_round_slowest();
             // With a target, never commit past it: the rest of the batch stays untried.
             let (mut batch, mut outcomes) = (batch, outcomes);
             if opts.target_faces > 0 {

@@ -55,6 +55,8 @@ pub struct StageClock {
     /// Placements failed at a dense triangle or edge an earlier try found torn or flipped,
     /// checked before the rest.
     torn_at_hint: AtomicU64,
+    /// The longest whole-candidate time since [`StageClock::take_round_slowest`] last read it.
+    round_slowest_ns: AtomicU64,
 }
 
 impl StageClock {
@@ -76,6 +78,13 @@ impl StageClock {
         let slot = if accepted { &self.accepted_ns } else { &self.rejected_ns };
         slot.fetch_add(ns, Ordering::Relaxed);
         self.placements.fetch_add(placements as u64, Ordering::Relaxed);
+        self.round_slowest_ns.fetch_max(ns, Ordering::Relaxed);
+    }
+
+    /// The longest time one candidate took (as [`StageClock::candidate`] measures it) since the
+    /// last call, in seconds, and starts over: called once a round, after its evaluation.
+    pub fn take_round_slowest(&self) -> f64 {
+        self.round_slowest_ns.swap(0, Ordering::Relaxed) as f64 * 1e-9
     }
 
     /// Counts the dense triangles and near edges one placement hands to the check.
@@ -175,3 +184,25 @@ const REASONS: [Reject; 8] = [
     Reject::Tear,
     Reject::Ambiguous,
 ];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    #[test]
+    fn a_round_keeps_its_slowest_candidate_and_the_next_starts_over() {
+        let clock = StageClock::default();
+        let now = Instant::now();
+        let ago = |ms: u64| now.checked_sub(Duration::from_millis(ms)).expect("an instant 20 ms ago");
+        clock.candidate(true, 1, ago(5));
+        clock.candidate(false, 3, ago(20));
+        clock.candidate(true, 2, ago(1));
+        let slowest = clock.take_round_slowest();
+        // The 20 ms candidate, measured a moment later (well under 20 ms more, even on a busy VM).
+        assert!((0.020..0.040).contains(&slowest), "slowest {slowest}");
+        assert_eq!(clock.take_round_slowest(), 0.0, "read once a round");
+        clock.candidate(true, 1, ago(2));
+        assert!((0.002..0.020).contains(&clock.take_round_slowest()));
+    }
+}
