@@ -6,7 +6,8 @@
 #   bash scripts/results.sh [OUTDIR] [--readme]     (default target/results)
 # With --readme it also writes the two tables into README.md, between the markers
 # `<!-- results.sh: results -->` / `<!-- results.sh: modes -->` and `<!-- /results.sh -->` (each
-# pair once; nothing is written unless both are found), and touches nothing else there.
+# pair once; nothing is written unless both are found and every run has its report), and
+# touches nothing else there.
 # Runs LANES decimations at a time (default: the number of cores), each with --threads 1 — the
 # bytes are the same for any thread count, and one thread a run wastes no core on a run's
 # serial parts —, longest first. A run whose report exists is not run again, so an interrupted
@@ -92,6 +93,9 @@ print("\n".join(tables["results"]))
 print()
 print("\n".join(tables["modes"]))
 if readme:
+    missing = [n for n in ["bunny", "horse", "armadillo", "nefertiti", "lucy", "sample", "turbineblade", "igea", "dragon", "sample6k", "sample6k-strict", "sample6k-constant", "bunny-strict", "horse-strict", "bunny-constant", "horse-constant"] if load(n) is None]
+    if missing:
+        sys.exit(f"results.sh: no report for {', '.join(missing)} in {out}; README not written")
     text = open(readme).read()
     closer = "<!-- /results.sh -->\n"
     if text.count(closer) != len(tables):
