@@ -63,6 +63,8 @@ python3 - "$out" "$readme" <<'PY'
 import json, sys, os
 out, readme = sys.argv[1], sys.argv[2]
 tables = {"results": [], "modes": []}
+RESULTS = ["bunny", "horse", "armadillo", "nefertiti", "lucy", "sample", "turbineblade", "igea", "dragon"]
+MODES = ["sample6k", "sample6k-strict", "sample6k-constant", "bunny-strict", "horse-strict", "bunny-constant", "horse-constant"]
 def emit(kind, line):
     tables[kind].append(line)
 def load(name):
@@ -73,7 +75,7 @@ def verdict(g):
     return f"{'valid' if g['valid'] else 'INVALID'}: {g['unmapped']} / {g['flipped']} / {g['torn']} / {ch['jump_edges']} ({ch['max_jump']:.2g})"
 emit("results", "| run | faces in | faces out | time (s) | local re-check | global check: unmapped / flipped / torn / jump edges (largest) | straddling triangles judged in charts | exempt | deferred |")
 emit("results", "|---|---:|---:|---:|---|---|---:|---:|---:|")
-for name in ["bunny", "horse", "armadillo", "nefertiti", "lucy", "sample", "turbineblade", "igea", "dragon"]:
+for name in RESULTS:
     r = load(name)
     if r is None:
         continue
@@ -82,7 +84,7 @@ for name in ["bunny", "horse", "armadillo", "nefertiti", "lucy", "sample", "turb
     emit("results", f"| {label} | {r['faces_in']:,} | {r['faces_out']:,} | {r['time']['total_s']:.1f} | {'valid' if c['valid'] else 'INVALID'} | {verdict(g)} | {g['checks']['straddling']:,} | {g['pinched']} | {r['collapses'].get('deferred', 0):,} |")
 emit("modes", "| run | faces out | time (s) | local re-check | global check: unmapped / flipped / torn / jump edges (largest) | ambiguous (strict) | exempt vertices / edges |")
 emit("modes", "|---|---:|---:|---|---|---:|---|")
-for name in ["sample6k", "sample6k-strict", "sample6k-constant", "bunny-strict", "horse-strict", "bunny-constant", "horse-constant"]:
+for name in MODES:
     r = load(name)
     if r is None:
         continue
@@ -93,7 +95,7 @@ print("\n".join(tables["results"]))
 print()
 print("\n".join(tables["modes"]))
 if readme:
-    missing = [n for n in ["bunny", "horse", "armadillo", "nefertiti", "lucy", "sample", "turbineblade", "igea", "dragon", "sample6k", "sample6k-strict", "sample6k-constant", "bunny-strict", "horse-strict", "bunny-constant", "horse-constant"] if load(n) is None]
+    missing = [n for n in RESULTS + MODES if load(n) is None]
     if missing:
         sys.exit(f"results.sh: no report for {', '.join(missing)} in {out}; README not written")
     text = open(readme).read()
