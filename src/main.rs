@@ -136,6 +136,9 @@ enum Cmd {
         /// Folder for the generated sample and the outputs (default: a temporary folder).
         #[arg(long)]
         work: Option<PathBuf>,
+        /// The round width of every run, as `decimate --batch`.
+        #[arg(long, default_value_t = 16)]
+        batch: usize,
     },
     /// One run of `dispdec bench`, in a process of its own (so that its peak memory is its own):
     /// decimates INPUT into OUTPUT with default options and writes what was measured as JSON.
@@ -145,6 +148,8 @@ enum Cmd {
         output: PathBuf,
         #[arg(long, value_enum)]
         config: BenchConfig,
+        #[arg(long, default_value_t = 16)]
+        batch: usize,
         /// Where the measurement goes (JSON).
         #[arg(long)]
         result: PathBuf,
@@ -613,9 +618,12 @@ fn run(cli: Cli) -> Result<i32> {
             say.line(&format!("wrote {} ({} meshes, {adapter})", output.display(), meshes.len()));
             Ok(0)
         }
-        Cmd::Bench { json, runs, data, meshes, configs, work } => {
+        Cmd::Bench { json, runs, data, meshes, configs, work, batch } => {
             if runs == 0 {
                 return Err(dispdec::Error::Usage("--runs must be at least 1".into()).into());
+            }
+            if batch == 0 {
+                return Err(dispdec::Error::Usage("--batch must be at least 1".into()).into());
             }
             let data = data
                 .or_else(|| std::env::var_os("DISPDEC_DATA").map(PathBuf::from))
@@ -628,6 +636,7 @@ fn run(cli: Cli) -> Result<i32> {
                 work: work.unwrap_or_else(|| std::env::temp_dir().join(format!("dispdec-bench-{}", std::process::id()))),
                 exe: std::env::current_exe()?,
                 json: json.clone(),
+                batch,
             };
             let report = dispdec::app::bench::bench(&job, |line| say.line(line))?;
             print!("{}", dispdec::app::bench::table(&report));
@@ -641,8 +650,8 @@ fn run(cli: Cli) -> Result<i32> {
             println!("{}", serde_json::to_string(&dispdec::app::run::ProbeAnswer::here())?);
             Ok(0)
         }
-        Cmd::BenchRun { input, output, config, result } => {
-            let outcome = dispdec::app::bench::run_one(&input, &output, bench_config(config));
+        Cmd::BenchRun { input, output, config, batch, result } => {
+            let outcome = dispdec::app::bench::run_one(&input, &output, bench_config(config), batch);
             dispdec::mesh::write_atomic(&result, serde_json::to_string(&outcome)?.as_bytes())?;
             Ok(0)
         }

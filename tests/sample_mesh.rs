@@ -86,6 +86,7 @@ fn batch_one_is_the_serial_algorithm() {
         assert_eq!(r["global"]["valid"], true, "{}", r["global"]);
         let c = &r["collapses"];
         assert_eq!(c["deferred"], 0, "{c}");
+        assert_eq!(c["widest_round"], 1, "{c}");
         assert_eq!(r["faces_out"], BATCH1_FACES, "{}", r["faces_out"]);
         outs.push(std::fs::read(&obj).unwrap());
     }

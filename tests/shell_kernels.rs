@@ -396,4 +396,22 @@ fn bench_compares_the_paths_on_the_same_input() {
         assert!(rows[2]["band_fraction"].as_f64().is_some());
     }
     assert!(r["machine"].as_str().unwrap().contains("cores"));
+    assert_eq!(r["batch"], 16);
+    assert!(!out.contains("--batch"), "the default width goes unnamed: {out}");
+    // `--batch N` decimates every run at that width and names it: at 1, the paper's serial
+    // order, the 334 faces `tests/sample_mesh.rs` pins for this sample.
+    let j1 = dir.join("bench1.json");
+    let o = run(&[
+        "bench", "--meshes", scan.to_str().unwrap(), "--configs", "cpu1", "--batch", "1", "--json", j1.to_str().unwrap(),
+        "--work", dir.join("work1").to_str().unwrap(),
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.lines().next().is_some_and(|l| l.ends_with("; --batch 1")), "{out}");
+    let r: Value = serde_json::from_slice(&std::fs::read(&j1).unwrap()).unwrap();
+    assert_eq!(r["batch"], 1);
+    assert_eq!(r["rows"][0]["faces_out"], serde_json::json!([334]), "{r}");
+    let o = run(&["bench", "--meshes", scan.to_str().unwrap(), "--batch", "0", "--work", dir.join("work0").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--batch must be at least 1"));
 }

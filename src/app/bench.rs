@@ -59,6 +59,8 @@ pub struct BenchJob {
     /// Where the caller will write the JSON report: refused before any run if it is one of the
     /// scans.
     pub json: Option<PathBuf>,
+    /// The round width every run decimates with (`--batch`; default 16).
+    pub batch: usize,
 }
 
 /// One decimation as `dispdec bench-run` measures it, in its own process.
@@ -86,14 +88,14 @@ pub struct RunResult {
 pub type RunOutcome = Result<RunResult, Error>;
 
 /// One measured decimation (the body of `dispdec bench-run`): `input` → `output` in `config`,
-/// default options.
-pub fn run_one(input: &Path, output: &Path, config: Config) -> RunOutcome {
+/// default options but the round width.
+pub fn run_one(input: &Path, output: &Path, config: Config, batch: usize) -> RunOutcome {
     let dj = DecimateJob {
         input: input.to_path_buf(),
         output: output.to_path_buf(),
         map: None,
         report: None,
-        options: Options::default(),
+        options: Options { batch, ..Options::default() },
         threads: Some(if config == Config::Cpu1 { 1 } else { 0 }),
         progress: false,
         backend: if config == Config::Gpu { Backend::Gpu } else { Backend::Cpu },
@@ -140,7 +142,7 @@ fn measure(job: &BenchJob, input: &Path, output: &Path, config: Config) -> Resul
         .arg("bench-run")
         .arg(input)
         .arg(output)
-        .args(["--config", config.arg(), "--result"])
+        .args(["--config", config.arg(), "--batch", &job.batch.to_string(), "--result"])
         .arg(&result)
         .stdin(std::process::Stdio::null())
         .stdout(std::process::Stdio::null())
@@ -250,6 +252,8 @@ pub struct BenchReport {
     pub machine: String,
     pub cores: usize,
     pub runs: usize,
+    /// The round width of every run (`--batch`).
+    pub batch: usize,
     pub rows: Vec<Row>,
     /// Configurations that could not run here, and why.
     pub skipped: Vec<String>,
@@ -408,12 +412,16 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
             });
         }
     }
-    Ok(BenchReport { machine: machine_name(), cores, runs: job.runs.max(1), rows, skipped })
+    Ok(BenchReport { machine: machine_name(), cores, runs: job.runs.max(1), batch: job.batch, rows, skipped })
 }
 
 /// The table `dispdec bench` prints (Markdown, so that the README can show it as is).
 pub fn table(r: &BenchReport) -> String {
-    let mut s = format!("machine: {}; median of {} run(s) each\n\n", r.machine, r.runs);
+    let mut s = format!("machine: {}; median of {} run(s) each", r.machine, r.runs);
+    if r.batch != Options::default().batch {
+        s += &format!("; --batch {}", r.batch);
+    }
+    s += "\n\n";
     s += "| mesh | faces in | path | faces out | total s | evaluate s (in kernels) | pick+commit s | checks s | peak MB (B/face) | band | meshopt ms | × meshopt |\n";
     s += "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n";
     for row in &r.rows {

@@ -132,6 +132,9 @@ pub struct Stats {
     /// one candidate each, and more threads help only where that candidate's own check splits
     /// over them. For a round of one it is the whole evaluation.
     pub time_slowest_candidates_s: f64,
+    /// The most candidates one round took: below `--batch` where the look-ahead (4 queue
+    /// entries per slot) ran out before that many independent candidates were found.
+    pub widest_round: u64,
     /// Where the candidate test's CPU time went (filled at the end of a run).
     pub stages: crate::decimate::stages::StageSummary,
 }
@@ -509,6 +512,7 @@ impl State {
         for e in deferred {
             self.push_edge(e.a, e.b);
         }
+        self.stats.widest_round = self.stats.widest_round.max(out.len() as u64);
         let this = &*self;
         out.par_iter_mut().for_each(|c| this.fill_dense(c));
         out
