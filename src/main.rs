@@ -141,13 +141,15 @@ enum Cmd {
         batch: usize,
     },
     /// One run of `dispdec bench`, in a process of its own (so that its peak memory is its own):
-    /// decimates INPUT into OUTPUT with default options and writes what was measured as JSON.
+    /// decimates INPUT into OUTPUT with default options (but the bench's `--batch`) and writes
+    /// what was measured as JSON.
     #[command(hide = true)]
     BenchRun {
         input: PathBuf,
         output: PathBuf,
         #[arg(long, value_enum)]
         config: BenchConfig,
+        /// The round width (`decimate --batch`).
         #[arg(long, default_value_t = 16)]
         batch: usize,
         /// Where the measurement goes (JSON).
