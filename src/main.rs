@@ -137,7 +137,7 @@ enum Cmd {
         #[arg(long)]
         work: Option<PathBuf>,
         /// The round width of every run, as `decimate --batch`.
-        #[arg(long, default_value_t = 16)]
+        #[arg(long, default_value_t = Options::default().batch)]
         batch: usize,
     },
     /// One run of `dispdec bench`, in a process of its own (so that its peak memory is its own):
@@ -150,7 +150,7 @@ enum Cmd {
         #[arg(long, value_enum)]
         config: BenchConfig,
         /// The round width (`decimate --batch`).
-        #[arg(long, default_value_t = 16)]
+        #[arg(long, default_value_t = Options::default().batch)]
         batch: usize,
         /// Where the measurement goes (JSON).
         #[arg(long)]
@@ -195,7 +195,7 @@ enum Cmd {
         #[arg(long)]
         threads: Option<usize>,
         /// Candidates evaluated per round (1 = the paper's serial algorithm).
-        #[arg(long, default_value_t = 16)]
+        #[arg(long, default_value_t = Options::default().batch)]
         batch: usize,
         /// Which dense vertices' edges a candidate walks again besides its own: those within
         /// |d| + half their longest edge of the collapsed region's triangles (triangles), or of
@@ -623,9 +623,6 @@ fn run(cli: Cli) -> Result<i32> {
         Cmd::Bench { json, runs, data, meshes, configs, work, batch } => {
             if runs == 0 {
                 return Err(dispdec::Error::Usage("--runs must be at least 1".into()).into());
-            }
-            if batch == 0 {
-                return Err(dispdec::Error::Usage("--batch must be at least 1".into()).into());
             }
             let data = data
                 .or_else(|| std::env::var_os("DISPDEC_DATA").map(PathBuf::from))

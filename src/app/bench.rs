@@ -342,6 +342,7 @@ impl QuadricInput {
 
 /// Runs the benchmark; `progress` gets one line per finished run.
 pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchReport, Error> {
+    crate::app::run::check_batch(job.batch)?;
     if let Some(json) = &job.json {
         let scans: Vec<PathBuf> = job.meshes.iter().filter_map(|m| named_file(job, m)).collect();
         crate::app::outputs::check_outputs(&scans.iter().map(PathBuf::as_path).collect::<Vec<_>>(), &[("the report", json)])?;

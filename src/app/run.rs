@@ -213,11 +213,17 @@ pub struct Report {
     pub peak_rss_mb: Option<f64>,
 }
 
-/// Runs the decimation job; on success every requested output exists, on failure none does.
-pub fn decimate(job: &DecimateJob) -> Result<Report, Error> {
-    if job.options.batch == 0 {
+/// A round width of at least one (`--batch`, for `decimate` and `bench` alike).
+pub fn check_batch(batch: usize) -> Result<(), Error> {
+    if batch == 0 {
         return Err(Error::Usage("--batch must be at least 1".into()));
     }
+    Ok(())
+}
+
+/// Runs the decimation job; on success every requested output exists, on failure none does.
+pub fn decimate(job: &DecimateJob) -> Result<Report, Error> {
+    check_batch(job.options.batch)?;
     if let Some(d) = job.options.dmax {
         if !(d > 0.0 && d.is_finite()) {
             return Err(Error::Usage(format!("--dmax must be a positive number, got {d}")));
