@@ -10,12 +10,14 @@
 //!   ([`geometry::bvh`]);
 //! - [`guarantee`]: the predicates of SPEC §1 every check shares (primary search, continuity,
 //!   orientation in intrinsic charts);
-//! - [`decimate`]: queue, association, rounds, commit; the local test of one candidate
-//!   ([`decimate::local`]), the re-check of its own state ([`decimate::recheck`]), the dense
+//! - [`decimate`]: queue, association, rounds, commit; what each stage of the candidate test
+//!   does for one (candidate, placement) ([`decimate::local`]), the re-check of its own state ([`decimate::recheck`]), the dense
 //!   vertices of each base face ([`decimate::members`]), the grids of its searches
 //!   ([`decimate::grid`]), the stage clocks ([`decimate::stages`]) and the
 //!   interface its rounds call ([`decimate::outcome`]: [`decimate::Evaluator`], outcomes);
-//! - [`eval`]: the CPU evaluator (the GPU one is [`gpu::eval`]);
+//! - [`eval`]: the candidate test as stages over a round ([`eval::pipeline`]: gather, hints,
+//!   primaries, reach, checks), shared by both evaluators, and the CPU evaluator (the GPU's
+//!   primaries stage is [`gpu::eval`]);
 //! - [`gpu`]: the only place that calls wgpu (device, shell kernel context, buffers), the GPU
 //!   evaluator and projection ([`gpu::eval`]) and the headless render ([`gpu::render`]);
 //! - [`validate`]: the independent, global check of a (scan, base) pair;

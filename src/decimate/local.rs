@@ -1,5 +1,9 @@
-//! The local test of one candidate collapse (SPEC §2 step 5): the collapsed neighbourhood,
-//! the primary solutions of the dense vertices it can affect, and the flip and tear checks.
+//! The local test of a candidate collapse (SPEC §2 step 5), item by item: what each stage of
+//! [`crate::eval::pipeline`] does for one (candidate, placement) — the collapsed
+//! neighbourhood (`State::build_neighbourhood`), the hinted checks
+//! (`State::unmapped_at_hint`, `State::torn_at_hint`), the region's primary solutions
+//! (`State::solve_region_vertices`), the reach (`State::reach_placement`) and the flip and
+//! tear checks (`State::check_placement`).
 //!
 //! Which dense vertices are tested:
 //! - those associated with the *region* (faces around u, w and their ring, whose direction
@@ -11,7 +15,7 @@
 use crate::decimate::{Candidate, NearRule, State};
 use crate::guarantee::chunks::{chunk_count, flat_map_chunks, run_to_first_failure};
 use crate::guarantee::ids::{merge_sorted, sorted_unique, IdIndex};
-use super::outcome::{Accepted, Outcome, Rejected};
+use super::outcome::Accepted;
 use crate::guarantee::{check_alone, check_faces, find_primary, find_primary_capped, find_primary_near_first, find_primary_recording, find_primary_widening, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
 use crate::geometry::{beyond_box, face_cross, vertex_direction};
 use crate::decimate::stages::Stage;
@@ -71,113 +75,6 @@ impl State {
         Ok((new_dirs, n_region))
     }
 
-    /// Tests one candidate, placement by placement (SPEC §2 step 5). The first passing
-    /// placement wins; otherwise the first placement's reason is reported.
-    ///
-    /// A candidate that failed at a dense triangle or edge before (a torn or flipped element
-    /// in its fail memo) mostly fails there again, placement after placement, each time after
-    /// a long bisection ([`State::torn_at_hint`]): while the first placement is tested, a
-    /// thread with nothing else to do (late in a round) checks the same elements for the
-    /// others ([`State::torn_ahead`]). A placement found torn there fails without its own test:
-    /// it would have failed anyway (the verdict does not depend on which hinted element is
-    /// checked first), so the outcome is the same whichever thread did what — only the fail
-    /// memo's order, and with it the time of later tries, may differ.
-    pub fn evaluate_candidate(&self, c: &Candidate) -> Outcome {
-        let t0 = Instant::now();
-        let mut first_reason = None;
-        let mut tris = Tris::default();
-        let mut scratch = Scratch::default();
-        let mut first = if self.fail_hints { c.first_fail.clone() } else { Vec::new() };
-        let ahead_worth = c.placements.len() > 1 && self.fail_hints && !self.strict && first.iter().any(|h| !matches!(h, FailAt::Vertex(_)));
-        let hints = if ahead_worth { first.clone() } else { Vec::new() };
-        let mut ahead: Option<Vec<Option<(Reject, FailAt)>>> = None;
-        for (pi, &p) in c.placements.iter().enumerate() {
-            let tp = Instant::now();
-            let tested = if let Some((reason, at)) = ahead.as_ref().and_then(|a| a[pi]) {
-                self.failed_at_hint(&mut first, at);
-                Err(reason)
-            } else if pi == 0 && ahead_worth {
-                // Only a thread that steals the second job runs it (`migrated`): one thread
-                // alone tests the placements one by one, exactly as without it.
-                let (tested, spare) = rayon::join_context(
-                    |_| self.evaluate_placement(c, p, &mut tris, &mut scratch, &mut first),
-                    |cx| cx.migrated().then(|| self.torn_ahead(c, &hints)),
-                );
-                ahead = spare;
-                tested
-            } else {
-                self.evaluate_placement(c, p, &mut tris, &mut scratch, &mut first)
-            };
-            match tested {
-                Ok(acc) => {
-                    self.clock.candidate(true, pi + 1, t0);
-                    return Ok(Accepted { placement: pi, test_s: t0.elapsed().as_secs_f64(), ..acc });
-                }
-                Err(r) => {
-                    self.clock.failed(r, tp);
-                    first_reason.get_or_insert(r);
-                }
-            }
-        }
-        self.clock.candidate(false, c.placements.len(), t0);
-        Err(Rejected { reason: first_reason.unwrap_or(Reject::Link), at: first })
-    }
-
-    /// For each placement after the first, the hinted element ([`State::torn_hint`], over the
-    /// fail memo `hints` as it came) where that placement is torn or flipped, if any: such a
-    /// placement fails its whole test. `None` for the first placement and where none is found
-    /// (the placement is then tested in full, as usual).
-    fn torn_ahead(&self, c: &Candidate, hints: &[FailAt]) -> Vec<Option<(Reject, FailAt)>> {
-        let mut tris = Tris::default();
-        let mut scratch = Scratch::default();
-        let mut out = vec![None; c.placements.len()];
-        for (pi, &p) in c.placements.iter().enumerate().skip(1) {
-            if let Ok((_, n_region)) = self.build_neighbourhood(c, p, &mut tris) {
-                out[pi] = self.torn_hint(c, &tris, n_region, hints, &mut scratch);
-            }
-        }
-        out
-    }
-
-    fn evaluate_placement(&self, c: &Candidate, p: DVec3, tris: &mut Tris, scratch: &mut Scratch, first: &mut Vec<FailAt>) -> Result<Accepted, Reject> {
-        let t = Instant::now();
-        let nb = self.build_neighbourhood(c, p, tris);
-        let t = self.clock.lap(Stage::Neighbourhood, t);
-        let (new_dirs, n_region) = nb?;
-        if self.unmapped_at_hint(c, tris, first, scratch) {
-            self.clock.lap(Stage::Primaries, t);
-            return Err(Reject::Unmapped);
-        }
-        // (Its few solves counted as continuity: it is that stage's hinted check, run early.)
-        let t = self.clock.lap(Stage::Primaries, t);
-        let torn = self.torn_at_hint(c, tris, n_region, first, scratch);
-        let t = self.clock.lap(Stage::Continuity, t);
-        if let Some(r) = torn {
-            return Err(r);
-        }
-        let (maps, _) = self.solve_region_vertices(
-            c,
-            tris,
-            || (Scratch::default(), Vec::new(), usize::MAX),
-            |(scratch, normals, last), i, x, pinched| {
-                self.dense.vertex_normals(c.dense[i], normals);
-                if self.strict && !pinched {
-                    return find_primary(x, normals, tris, self.mode, self.dmax, true, true, scratch);
-                }
-                // The previous vertex's triangle first (`c.order` keeps neighbours together): a
-                // first hit there leaves only the triangles within its |d| to bound.
-                let found = find_primary_hinted(x, normals, tris, self.mode, self.dmax, !pinched, false, &[*last], scratch);
-                if let Found::Hit(t, _) = found {
-                    *last = t;
-                }
-                found
-            },
-        );
-        self.clock.lap(Stage::Primaries, t);
-        let maps = maps.map_err(|failed| self.note_solve_failure(first, failed))?;
-        self.finish_placement(c, p, new_dirs, n_region, tris, maps, scratch, first)
-    }
-
     /// Whether a region vertex where an earlier placement or try of the collapse found no
     /// solution (`FailAt::Vertex` in `first`) has none again: such a vertex goes first, alone,
     /// and the placement then fails as the whole solve would (the same search), without solving
@@ -217,7 +114,7 @@ impl State {
     /// and only elements the whole test checks are taken: a triangle of `c.dense_faces`, an
     /// edge of one it judges. The whole test would then fail too (which check fails first
     /// changes no verdict), so the placement fails here, without solving the rest; the element
-    /// goes first in `first` again. Not strict (as [`State::unmapped_at_hint`]).
+    /// goes first in `first` again. Not strict (as `State::unmapped_at_hint`).
     pub(crate) fn torn_at_hint(&self, c: &Candidate, tris: &Tris, n_region: usize, first: &mut Vec<FailAt>, scratch: &mut Scratch) -> Option<Reject> {
         let (reason, at) = self.torn_hint(c, tris, n_region, first, scratch)?;
         self.failed_at_hint(first, at);
@@ -230,7 +127,7 @@ impl State {
         note_failure(first, at);
     }
 
-    /// [`State::torn_at_hint`]'s check without its bookkeeping: the first element of `hints`
+    /// `State::torn_at_hint`'s check without its bookkeeping: the first element of `hints`
     /// that fails alone, and why.
     fn torn_hint(&self, c: &Candidate, tris: &Tris, n_region: usize, hints: &[FailAt], scratch: &mut Scratch) -> Option<(Reject, FailAt)> {
         if !self.fail_hints || self.strict {
@@ -301,9 +198,9 @@ impl State {
         Some(self.moved_onto(v, &normals, &region_tris(tris, n_region), scratch).unwrap_or(cur))
     }
 
-    /// Notes where the region's solve failed ([`State::solve_region_vertices`]'s error: an
+    /// Notes where the region's solve failed (`State::solve_region_vertices`'s error: an
     /// unmapped vertex goes into the fail memo, except in strict mode, which never reads it
-    /// back — see [`State::unmapped_at_hint`]) and returns the reason.
+    /// back — see `State::unmapped_at_hint`) and returns the reason.
     pub(crate) fn note_solve_failure(&self, first: &mut Vec<FailAt>, (reason, v): (Reject, u32)) -> Reject {
         if self.fail_hints && !self.strict && reason == Reject::Unmapped {
             note_failure(first, FailAt::Vertex(v));
@@ -372,31 +269,28 @@ impl State {
         (verdict.map(|_| maps), states)
     }
 
-    /// The rest of a placement's test once the region's vertices are solved: faces outside
-    /// that may hold smaller |d|, vertices whose primary moves onto the region, (strict) second
-    /// solutions of the ring's vertices on the region, and the exact orientation and continuity
-    /// checks of SPEC §1. Records everything the test read outside the neighbourhood, so that
-    /// commit can defer the candidate if an earlier commit of the round changed it.
-    #[allow(clippy::too_many_arguments)]
-    pub(crate) fn finish_placement(
-        &self,
-        c: &Candidate,
-        p: DVec3,
-        new_dirs: Vec<(u32, DVec3)>,
-        n_region: usize,
-        tris: &Tris,
-        mut maps: Vec<Map>,
-        scratch: &mut Scratch,
-        first: &mut Vec<FailAt>,
-    ) -> Result<Accepted, Reject> {
-        let dense = &self.dense;
+    /// The reach stage of a placement whose region's vertices are solved: faces outside that
+    /// may hold a smaller |d| (the better maps replace `maps`' entries), vertices whose primary
+    /// moves onto the region, and (strict) second solutions of the ring's vertices on the
+    /// region. What it found, for the checks (`State::check_placement`).
+    pub(crate) fn reach_placement(&self, c: &Candidate, tris: &Tris, n_region: usize, mut maps: Vec<Map>, scratch: &mut Scratch) -> Result<Reached, Reject> {
         let t = Instant::now();
         let mut read_faces = Vec::new();
         self.far_primaries(c, tris, &mut maps, scratch, &mut read_faces);
         let (extras, near) = self.moved_primaries(c, tris, n_region, scratch);
         let r = if self.strict { self.strict_ring(c, tris, n_region, &extras, scratch) } else { Ok(()) };
         self.clock.lap(Stage::Reach, t);
-        r?;
+        r.map(|_| Reached { maps, extras, near, read_faces })
+    }
+
+    /// The checks stage: the exact continuity and orientation checks of SPEC §1 over every
+    /// dense triangle around a changed map and every dense edge near the region, once the
+    /// reach stage found the maps. Records everything the test read outside the
+    /// neighbourhood, so that commit can defer the candidate if an earlier commit of the round
+    /// changed it; a failure goes first in the fail memo `first`.
+    pub(crate) fn check_placement(&self, c: &Candidate, p: DVec3, new_dirs: Vec<(u32, DVec3)>, tris: &Tris, reached: Reached, first: &mut Vec<FailAt>) -> Result<Accepted, Reject> {
+        let dense = &self.dense;
+        let Reached { maps, extras, near, read_faces } = reached;
         // Whole triangles around every vertex whose map changes; only the edges of the vertices
         // whose maps stay but whose edges pass near the region (their images can change only by
         // reaching onto it, which continuity sees).
@@ -743,6 +637,18 @@ impl State {
 
 }
 
+/// What a placement's reach stage found (`State::reach_placement`), for its checks.
+pub struct Reached {
+    /// The region's maps (`Candidate::dense` order), better ones on faces outside put in.
+    pub maps: Vec<Map>,
+    /// Vertices associated outside the region whose primary moves onto it, ascending.
+    pub extras: Vec<(u32, Map)>,
+    /// Other vertices near enough that their edges may reach onto the region, ascending.
+    pub near: Vec<u32>,
+    /// Faces outside the neighbourhood the searches read.
+    pub read_faces: Vec<u32>,
+}
+
 /// The region's faces of a neighbourhood (its first `n_region`) as a set of their own.
 fn region_tris(tris: &Tris, n_region: usize) -> Tris {
     let mut region = Tris::default();
@@ -776,11 +682,11 @@ fn note_failure(first: &mut Vec<FailAt>, at: FailAt) {
     first.truncate(FAIL_HINTS);
 }
 
-/// Fewest region vertices in one parallel chunk of [`State::solve_region_vertices`].
+/// Fewest region vertices in one parallel chunk of `State::solve_region_vertices`.
 /// Why: a primary search costs a few µs; 64 of them dwarf a chunk's scratch and its join.
 const PRIMARY_CHUNK_MIN: usize = 64;
 
-/// Most chunks per thread of [`State::solve_region_vertices`].
+/// Most chunks per thread of `State::solve_region_vertices`.
 /// Why: as the check's: a round's last candidate can use the idle threads.
 const PRIMARY_CHUNKS_PER_THREAD: usize = 4;
 
@@ -918,7 +824,7 @@ enum CheckMaps<'a> {
     /// The region's solve: a map per vertex of `c.dense` (found by `index`), and the vertices
     /// outside whose primary moves onto the region (`extras`, ascending).
     Region { index: IdIndex, maps: &'a [Map], extras: &'a [(u32, Map)] },
-    /// The vertices of one element checked alone ([`State::torn_at_hint`]), ascending: the
+    /// The vertices of one element checked alone (`State::torn_at_hint`), ascending: the
     /// check reads no other.
     Few(&'a [(u32, Map)]),
 }
@@ -1329,13 +1235,15 @@ mod tests {
         assert!(below > 3800 && between > 4900 && beyond > 9200, "{below} {between} {beyond}");
     }
 
-    /// [`State::torn_ahead`]'s promise: a placement it finds torn or flipped at a hinted
-    /// element fails its whole test too, whatever the fail memo — checked on every candidate of
-    /// a decimation of the scan-like sample (bumps, a fin, an overhang) whose memo holds a torn
-    /// or flipped element, against the placement's full test with no memo at all.
+    /// The hint stage's promise (`State::torn_at_hint`): a placement found torn or flipped at
+    /// an element of its fail memo, alone, fails its whole test too, whatever the memo —
+    /// checked for every placement of every candidate of a decimation of the scan-like sample
+    /// (bumps, a fin, an overhang) whose memo holds a torn or flipped element, against the
+    /// placement's full test with no memo at all.
     #[test]
-    fn a_placement_found_torn_ahead_fails_its_whole_test() {
+    fn a_placement_torn_at_a_hint_fails_its_whole_test() {
         use crate::decimate::{Evaluator, Options};
+        use crate::eval::pipeline::{evaluate_round, CpuPrimaries};
         use crate::eval::CpuEvaluator;
         use std::sync::atomic::{AtomicUsize, Ordering};
         struct Ahead {
@@ -1344,19 +1252,21 @@ mod tests {
         }
         impl Evaluator for Ahead {
             fn name(&self) -> String {
-                "ahead".into()
+                "hints".into()
             }
-            fn evaluate(&self, state: &State, batch: &[Candidate]) -> Result<Vec<Outcome>, crate::error::GpuError> {
-                for c in batch.iter().filter(|c| c.placements.len() > 1 && c.first_fail.iter().any(|h| !matches!(h, FailAt::Vertex(_)))) {
+            fn evaluate(&self, state: &State, batch: &[Candidate]) -> Result<Vec<crate::decimate::Outcome>, crate::error::GpuError> {
+                for c in batch.iter().filter(|c| c.first_fail.iter().any(|h| !matches!(h, FailAt::Vertex(_)))) {
                     self.asked.fetch_add(1, Ordering::Relaxed);
-                    for (pi, ahead) in state.torn_ahead(c, &c.first_fail).into_iter().enumerate() {
-                        let Some((reason, at)) = ahead else { continue };
-                        self.found.fetch_add(1, Ordering::Relaxed);
-                        assert!(pi > 0 && matches!(reason, Reject::Tear | Reject::Flip), "{pi} {reason:?}");
-                        assert!(c.first_fail.contains(&at));
+                    for (pi, &p) in c.placements.iter().enumerate() {
                         let (mut tris, mut scratch) = (Tris::default(), Scratch::default());
-                        let whole = state.evaluate_placement(c, c.placements[pi], &mut tris, &mut scratch, &mut Vec::new());
-                        assert!(whole.is_err(), "placement {pi} of ({}, {}) torn at {at:?} ahead passes its whole test", c.u, c.w);
+                        let Ok((_, n_region)) = state.build_neighbourhood(c, p, &mut tris) else { continue };
+                        let Some((reason, at)) = state.torn_hint(c, &tris, n_region, &c.first_fail, &mut scratch) else { continue };
+                        self.found.fetch_add(1, Ordering::Relaxed);
+                        assert!(matches!(reason, Reject::Tear | Reject::Flip), "{pi} {reason:?}");
+                        assert!(c.first_fail.contains(&at));
+                        let alone = Candidate { placements: vec![p], first_fail: Vec::new(), ..c.clone() };
+                        let whole = evaluate_round(state, std::slice::from_ref(&alone), &CpuPrimaries)?;
+                        assert!(whole[0].is_err(), "placement {pi} of ({}, {}) torn at {at:?} passes its whole test", c.u, c.w);
                     }
                 }
                 CpuEvaluator.evaluate(state, batch)
@@ -1368,9 +1278,8 @@ mod tests {
         let ahead = Ahead { found: AtomicUsize::new(0), asked: AtomicUsize::new(0) };
         st.run(&ahead, &Options::default(), |_| {}).unwrap();
         let (found, asked) = (ahead.found.into_inner(), ahead.asked.into_inner());
-        // Measured: 62 placements found torn ahead, of 71 candidates asked (the memos' order may
-        // vary a little with the threads' timing, as `evaluate_candidate` says); −10 %.
-        println!("{found} placements torn ahead, of {asked} candidates asked");
-        assert!(found >= 56 && asked >= 64, "{found} of {asked}");
+        // Measured: 938 placements torn at a hint, of 961 candidates asked; −10 %.
+        println!("{found} placements torn at a hint, of {asked} candidates asked");
+        assert!(found >= 844 && asked >= 865, "{found} of {asked}");
     }
 }

@@ -1,4 +1,5 @@
-//! The CPU reference evaluator of candidate collapses, [`CpuEvaluator`] (rayon over the batch).
+//! The candidate test as stages over a round ([`pipeline`]) and the CPU reference evaluator,
+//! [`CpuEvaluator`], which runs them in Rust (rayon over each stage's items).
 //! The interface it implements ([`Evaluator`], [`Outcome`]) belongs to the decimator that calls
 //! it ([`crate::decimate::outcome`]); the predicates every test shares live in
 //! [`crate::guarantee`]. Both are re-exported here for callers of the evaluators.
@@ -6,10 +7,12 @@
 pub use crate::decimate::outcome::{Accepted, Evaluator, Outcome, Rejected};
 pub use crate::guarantee::*;
 use crate::decimate::{Candidate, State};
+pub mod pipeline;
 use rayon::prelude::*;
 
 
-/// The reference evaluator: Rust, parallel over the batch with rayon.
+/// The reference evaluator: the stages of [`pipeline`] in Rust, each parallel over its
+/// items with rayon, with the f64 primaries stage ([`pipeline::CpuPrimaries`]).
 pub struct CpuEvaluator;
 
 impl Evaluator for CpuEvaluator {
@@ -17,9 +20,9 @@ impl Evaluator for CpuEvaluator {
         format!("cpu ({} threads)", rayon::current_num_threads())
     }
     fn evaluate(&self, state: &State, batch: &[Candidate]) -> Result<Vec<Outcome>, crate::error::GpuError> {
-        if batch.len() == 1 {
-            return Ok(vec![state.evaluate_candidate(&batch[0])]);
-        }
-        Ok(batch.par_iter().map(|c| state.evaluate_candidate(c)).collect())
+        // Each candidate's waves on their own (a round of one): a candidate whose placement
+        // fails goes on to its next at once, not after the round's slowest first placement.
+        let rounds: Result<Vec<Vec<Outcome>>, _> = batch.par_iter().map(|c| pipeline::evaluate_round(state, std::slice::from_ref(c), &pipeline::CpuPrimaries)).collect();
+        Ok(rounds?.into_iter().flatten().collect())
     }
 }

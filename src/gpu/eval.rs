@@ -13,8 +13,9 @@
 
 use crate::geometry::bvh::Bvh;
 use crate::decimate::{Candidate, State};
-use crate::decimate::{Accepted, Evaluator, Outcome, Rejected};
-use crate::guarantee::{best_on_triangle, find_primary, FailAt, Found, Map, NormalMode, Reject, Scratch, Tris};
+use crate::decimate::{Evaluator, Outcome};
+use crate::eval::pipeline::{self, Item, Primaries, Solved};
+use crate::guarantee::{best_on_triangle, find_primary, Found, Map, NormalMode, Scratch, Tris};
 use crate::geometry::ShellHit;
 use crate::gpu::{Gpu, GpuAnswer, GpuError, GpuNode, GpuQuery, GpuTri, ShellEntry, ShellKernel, WORKGROUP_SIZE};
 use crate::mesh::DenseData;
@@ -226,14 +227,6 @@ pub struct GpuEvaluator {
     stats: Mutex<BandStats>,
 }
 
-/// One placement of one candidate, prepared on the CPU.
-struct Prepared {
-    position: DVec3,
-    built: Result<(Vec<(u32, DVec3)>, usize, Tris), Reject>,
-    /// First query of this placement in the batch.
-    first_query: usize,
-}
-
 impl GpuEvaluator {
     /// Opens the shell kernels on `gpu` and uploads the dense mesh's normals.
     pub fn new(gpu: Gpu, dense: &DenseData) -> Result<GpuEvaluator, GpuError> {
@@ -260,23 +253,14 @@ impl GpuEvaluator {
         }
     }
 
-    /// Builds the neighbourhoods of the given (candidate, placement) pairs and their queries.
-    fn prepare(&self, state: &State, batch: &[Candidate], pairs: &[(usize, usize)]) -> (Vec<Prepared>, Vec<GpuTri>, Vec<GpuQuery>) {
-        let mut prepared: Vec<Prepared> = pairs
-            .par_iter()
-            .map(|&(ci, pi)| {
-                let c = &batch[ci];
-                let p = c.placements[pi];
-                let mut tris = Tris::default();
-                let built = state.build_neighbourhood(c, p, &mut tris).map(|(nd, nr)| (nd, nr, tris));
-                Prepared { position: p, built, first_query: 0 }
-            })
-            .collect();
-        let (mut gtris, mut queries) = (Vec::new(), Vec::new());
-        for (&(ci, _), prep) in pairs.iter().zip(prepared.iter_mut()) {
+    /// The kernel's buffers for a wave: each item's neighbourhood (relative to its first
+    /// corner) and one query per region vertex (`Candidate::dense` order), and where each
+    /// item's queries start.
+    fn queries<'a>(state: &State, batch: &[Candidate], items: impl Iterator<Item = (usize, &'a Tris)>) -> (Vec<GpuTri>, Vec<GpuQuery>, Vec<usize>) {
+        let (mut gtris, mut queries, mut first) = (Vec::new(), Vec::new(), Vec::new());
+        for (ci, tris) in items {
             let c = &batch[ci];
-            prep.first_query = queries.len();
-            let Ok((_, _, tris)) = &prep.built else { continue };
+            first.push(queries.len());
             let origin = tris.pos[0][0];
             let tri_start = gtris.len() as u32;
             gtris.extend((0..tris.len()).map(|t| gpu_tri(tris, t, origin)));
@@ -299,24 +283,29 @@ impl GpuEvaluator {
                 });
             }
         }
-        (prepared, gtris, queries)
+        (gtris, queries, first)
     }
 
     /// The kernel's raw answers for every (candidate, placement, dense vertex) of a batch, with
     /// each placement's neighbourhood: for the parity test, which compares them with
     /// [`find_primary`] on the same neighbourhoods.
     pub fn raw_answers(&self, state: &State, batch: &[Candidate]) -> Result<Vec<(usize, usize, Tris, Vec<GpuAnswer>)>, GpuError> {
-        let pairs: Vec<(usize, usize)> = batch.iter().enumerate().flat_map(|(ci, c)| (0..c.placements.len()).map(move |pi| (ci, pi))).collect();
-        let (prepared, gtris, queries) = self.prepare(state, batch, &pairs);
-        let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
-        let mut out = Vec::new();
-        for (&(ci, pi), prep) in pairs.iter().zip(prepared) {
-            if let Ok((_, _, tris)) = prep.built {
-                let a = answers[prep.first_query..prep.first_query + batch[ci].dense.len()].to_vec();
-                out.push((ci, pi, tris, a));
+        let mut built = Vec::new();
+        for (ci, c) in batch.iter().enumerate() {
+            for (pi, &p) in c.placements.iter().enumerate() {
+                let mut tris = Tris::default();
+                if state.build_neighbourhood(c, p, &mut tris).is_ok() {
+                    built.push((ci, pi, tris));
+                }
             }
         }
-        Ok(out)
+        let (gtris, queries, first) = Self::queries(state, batch, built.iter().map(|(ci, _, t)| (*ci, t)));
+        let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
+        Ok(built
+            .into_iter()
+            .zip(first)
+            .map(|((ci, pi, tris), q)| (ci, pi, tris, answers[q..q + batch[ci].dense.len()].to_vec()))
+            .collect())
     }
 
     /// Projects every dense vertex onto the whole base (the validator's first step): the
@@ -395,87 +384,45 @@ impl Evaluator for GpuEvaluator {
         format!("gpu: {}", self.adapter())
     }
 
-    /// Placement by placement, as the CPU tries them: one dispatch holds placement k of every
-    /// candidate still undecided, so a candidate whose first placement passes costs one.
+    /// The CPU's stages ([`pipeline::evaluate_round`]) with the kernel as the primaries stage.
     fn evaluate(&self, state: &State, batch: &[Candidate]) -> Result<Vec<Outcome>, GpuError> {
-        let mut outcomes: Vec<Option<Outcome>> = vec![None; batch.len()];
-        let mut first_reason: Vec<Option<Reject>> = vec![None; batch.len()];
-        // Where each candidate's earlier placements failed (tested first by the next).
-        let mut first_fail: Vec<Vec<FailAt>> = batch.iter().map(|c| c.first_fail.clone()).collect();
-        let rounds = batch.iter().map(|c| c.placements.len()).max().unwrap_or(0);
-        let mut spent = vec![0.0f64; batch.len()];
-        for pi in 0..rounds {
-            let pairs: Vec<(usize, usize)> =
-                (0..batch.len()).filter(|&ci| outcomes[ci].is_none() && pi < batch[ci].placements.len()).map(|ci| (ci, pi)).collect();
-            if pairs.is_empty() {
-                break;
-            }
-            let (prepared, gtris, queries) = self.prepare(state, batch, &pairs);
-            let t0 = Instant::now();
-            let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
-            let kernel_s = t0.elapsed().as_secs_f64();
-            let mut fails: Vec<Vec<FailAt>> = pairs.iter().map(|&(ci, _)| std::mem::take(&mut first_fail[ci])).collect();
-            let results: Vec<(Result<Accepted, Reject>, u64, f64)> = pairs
-                .par_iter()
-                .zip(prepared.into_par_iter())
-                .zip(fails.par_iter_mut())
-                .map(|((&(ci, pi), prep), first)| {
-                    let t = Instant::now();
-                    let c = &batch[ci];
-                    let (new_dirs, n_region, tris) = match prep.built {
-                        Ok(b) => b,
-                        Err(r) => return (Err(r), 0, t.elapsed().as_secs_f64()),
-                    };
-                    // As the CPU path: an unmapped vertex of an earlier try first, alone.
-                    let mut scratch = Scratch::default();
-                    if state.unmapped_at_hint(c, &tris, first, &mut scratch) {
-                        return (Err(Reject::Unmapped), 0, t.elapsed().as_secs_f64());
-                    }
-                    // ...and a torn or flipped element of an earlier try.
-                    if let Some(r) = state.torn_at_hint(c, &tris, n_region, first, &mut scratch) {
-                        return (Err(r), 0, t.elapsed().as_secs_f64());
-                    }
-                    let mine = &answers[prep.first_query..prep.first_query + c.dense.len()];
-                    let (solved, states) = state.solve_region_vertices(
-                        c,
-                        &tris,
-                        || (Scratch::default(), Vec::new(), 0u64),
-                        |(scratch, normals, disagreements), i, x, pinched| {
-                            state.dense.vertex_normals(c.dense[i], normals);
-                            let (check4, strict) = (!pinched, state.strict && !pinched);
-                            settle(&mine[i], x, normals, &tris, state.mode, state.dmax, check4, disagreements, || {
-                                find_primary(x, normals, &tris, state.mode, state.dmax, check4, strict, scratch)
-                            })
-                        },
-                    );
-                    let disagreements: u64 = states.iter().map(|s| s.2).sum();
-                    let r = solved
-                        .map_err(|failed| state.note_solve_failure(first, failed))
-                        .and_then(|maps| state.finish_placement(c, prep.position, new_dirs, n_region, &tris, maps, &mut scratch, first))
-                        .map(|acc| Accepted { placement: pi, ..acc });
-                    (r, disagreements, t.elapsed().as_secs_f64())
-                })
-                .collect();
-            self.add_stats(&answers, results.iter().map(|r| r.1).sum(), kernel_s);
-            for (&(ci, _), f) in pairs.iter().zip(fails) {
-                first_fail[ci] = f;
-            }
-            for (&(ci, _), (r, _, secs)) in pairs.iter().zip(results) {
-                // A candidate's test time: the CPU side of every placement it tried.
-                spent[ci] += secs;
-                match r {
-                    Ok(acc) => outcomes[ci] = Some(Ok(Accepted { test_s: spent[ci], ..acc })),
-                    Err(reason) => {
-                        first_reason[ci].get_or_insert(reason);
-                    }
-                }
-            }
-        }
-        Ok(outcomes
-            .into_iter()
-            .zip(first_reason)
-            .zip(first_fail)
-            .map(|((o, r), at)| o.unwrap_or(Err(Rejected { reason: r.unwrap_or(Reject::Link), at })))
-            .collect())
+        pipeline::evaluate_round(state, batch, self)
+    }
+}
+
+/// The primaries stage on the GPU: one dispatch for every region vertex of every item of the
+/// wave, then each answer settled on the CPU ([`settle`]: outside the band the kernel's
+/// triangle redone in f64, in it the whole f64 search).
+impl Primaries for GpuEvaluator {
+    fn solve(&self, state: &State, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64)>, GpuError> {
+        let (gtris, queries, first) = Self::queries(state, batch, items.iter().map(|it| (it.candidate, &it.tris)));
+        let t0 = Instant::now();
+        let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
+        let kernel_s = t0.elapsed().as_secs_f64();
+        let results: Vec<(Solved, u64, f64)> = items
+            .par_iter()
+            .zip(first)
+            .map(|(it, q)| {
+                let t = Instant::now();
+                let c = &batch[it.candidate];
+                let tris = &it.tris;
+                let mine = &answers[q..q + c.dense.len()];
+                let (solved, states) = state.solve_region_vertices(
+                    c,
+                    tris,
+                    || (Scratch::default(), Vec::new(), 0u64),
+                    |(scratch, normals, disagreements), i, x, pinched| {
+                        state.dense.vertex_normals(c.dense[i], normals);
+                        let (check4, strict) = (!pinched, state.strict && !pinched);
+                        settle(&mine[i], x, normals, tris, state.mode, state.dmax, check4, disagreements, || {
+                            find_primary(x, normals, tris, state.mode, state.dmax, check4, strict, scratch)
+                        })
+                    },
+                );
+                (solved, states.iter().map(|s| s.2).sum(), t.elapsed().as_secs_f64())
+            })
+            .collect();
+        self.add_stats(&answers, results.iter().map(|r| r.1).sum(), kernel_s);
+        Ok(results.into_iter().map(|(r, _, s)| (r, s)).collect())
     }
 }

@@ -1,0 +1,341 @@
+//! The candidate test as a pipeline of stages over a round (SPEC §3), shared by both
+//! evaluators: the CPU's and the GPU's differ only in their [`Primaries`] stage.
+//!
+//! A round is tested in *waves*: wave k holds placement k of every candidate still undecided
+//! (so a candidate whose first placement passes costs one, as on the serial path), and each
+//! wave runs the stages in order, each one function over the whole wave (rayon over its items):
+//!
+//! ```text
+//!   gather     the collapsed neighbourhood of each (candidate, placement)  stage_neighbourhoods
+//!   hints      the vertex or element where the last try failed, alone     stage_hints
+//!   primaries  the region's dense vertices over the neighbourhood         Primaries::solve
+//!   reach      faces beyond with a smaller |d|, vertices moving onto it   stage_reach
+//!   checks     continuity and orientation: one verdict per placement      stage_checks
+//! ```
+//!
+//! The CPU evaluator runs each candidate's waves as a round of its own (its stages split over
+//! the threads inside: a candidate whose placement fails goes on to the next at once); the GPU
+//! evaluator runs the whole round's waves, one dispatch per wave.
+//!
+//! An item that fails leaves the wave at its stage; its candidate's fail memo (where it
+//! failed, tested first by its next placement and its next try) goes on to the next wave. A
+//! candidate's memo changes only in its own items, one wave after the other, so the outcomes —
+//! and the memos — are the same whatever the thread count.
+
+use crate::decimate::outcome::{Accepted, Outcome, Rejected};
+use crate::decimate::stages::Stage;
+use crate::decimate::local::Reached;
+use crate::decimate::{Candidate, State};
+use crate::error::GpuError;
+use crate::guarantee::{find_primary, find_primary_hinted, FailAt, Found, Map, Reject, Scratch, Tris};
+use glam::DVec3;
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// One (candidate, placement) of a wave, from its gather on: its collapsed neighbourhood and
+/// the scratch its searches share (as one placement's test always has).
+pub struct Item {
+    /// Index of the candidate in the round's batch.
+    pub candidate: usize,
+    pub position: DVec3,
+    /// New directions of the kept vertex and its ring.
+    pub new_dirs: Vec<(u32, DVec3)>,
+    /// The region's faces are the first `n_region` of `tris`; the border's follow.
+    pub n_region: usize,
+    pub tris: Tris,
+    pub scratch: Scratch,
+}
+
+/// The region's primary solutions of one item, in `Candidate::dense` order, or the first
+/// vertex (in `Candidate::order`) without one (or, strict, with two) and why.
+pub type Solved = Result<Vec<Map>, (Reject, u32)>;
+
+/// The primaries stage: every region vertex of every item over its neighbourhood. The CPU's
+/// is the f64 search ([`CpuPrimaries`]); the GPU's, the WGSL kernel with its tolerance band
+/// (`gpu::eval`). Both give the same answers (the band's whole point).
+pub trait Primaries: Sync {
+    /// The solutions of `items` (all of them: the wave's survivors of the hint stage), in
+    /// order, each with the CPU seconds spent on it alone (a shared dispatch not counted).
+    fn solve(&self, state: &State, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64)>, GpuError>;
+}
+
+/// The f64 primaries stage: [`find_primary`] over each item's neighbourhood, each region's
+/// vertices in contiguous chunks of `Candidate::order` over the threads.
+pub struct CpuPrimaries;
+
+impl Primaries for CpuPrimaries {
+    fn solve(&self, state: &State, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64)>, GpuError> {
+        Ok(items
+            .par_iter()
+            .map(|it| {
+                let t = Instant::now();
+                let c = &batch[it.candidate];
+                let tris = &it.tris;
+                let (solved, _) = state.solve_region_vertices(
+                    c,
+                    tris,
+                    || (Scratch::default(), Vec::new(), usize::MAX),
+                    |(scratch, normals, last), i, x, pinched| {
+                        state.dense.vertex_normals(c.dense[i], normals);
+                        if state.strict && !pinched {
+                            return find_primary(x, normals, tris, state.mode, state.dmax, true, true, scratch);
+                        }
+                        // The previous vertex's triangle first (`c.order` keeps neighbours
+                        // together): a first hit there leaves only the triangles within its
+                        // |d| to bound.
+                        let found = find_primary_hinted(x, normals, tris, state.mode, state.dmax, !pinched, false, &[*last], scratch);
+                        if let Found::Hit(t, _) = found {
+                            *last = t;
+                        }
+                        found
+                    },
+                );
+                (solved, t.elapsed().as_secs_f64())
+            })
+            .collect())
+    }
+}
+
+/// Gather: the collapsed neighbourhood of placement `placement` of each candidate `cands`
+/// (fails on a fold-over), with the seconds each took.
+pub fn stage_neighbourhoods(state: &State, batch: &[Candidate], placement: usize, cands: &[usize]) -> Vec<(Result<Item, Reject>, f64)> {
+    cands
+        .par_iter()
+        .map(|&ci| {
+            let t = Instant::now();
+            let c = &batch[ci];
+            let position = c.placements[placement];
+            let mut tris = Tris::default();
+            let built = state.build_neighbourhood(c, position, &mut tris).map(|(new_dirs, n_region)| Item {
+                candidate: ci,
+                position,
+                new_dirs,
+                n_region,
+                tris,
+                scratch: Scratch::default(),
+            });
+            let s = t.elapsed().as_secs_f64();
+            state.clock.add(Stage::Neighbourhood, (s * 1e9) as u64);
+            (built, s)
+        })
+        .collect()
+}
+
+/// Hints: each item's candidate's fail memo checked first — a region vertex an earlier try
+/// found unmapped, then a dense triangle or edge it found torn or flipped — alone; an item
+/// that fails there fails its whole test (`State::unmapped_at_hint`, `State::torn_at_hint`).
+/// `memos[i]` is item i's candidate's memo.
+pub fn stage_hints(state: &State, batch: &[Candidate], items: &mut [Item], memos: &mut [Vec<FailAt>]) -> Vec<(Option<Reject>, f64)> {
+    items
+        .par_iter_mut()
+        .zip(memos.par_iter_mut())
+        .map(|(it, first)| {
+            let t = Instant::now();
+            let c = &batch[it.candidate];
+            if state.unmapped_at_hint(c, &it.tris, first, &mut it.scratch) {
+                let s = t.elapsed().as_secs_f64();
+                state.clock.add(Stage::Primaries, (s * 1e9) as u64);
+                return (Some(Reject::Unmapped), s);
+            }
+            let t1 = Instant::now();
+            state.clock.add(Stage::Primaries, (t1 - t).as_nanos() as u64);
+            // (Its few solves counted as continuity: it is that stage's hinted check, run early.)
+            let torn = state.torn_at_hint(c, &it.tris, it.n_region, first, &mut it.scratch);
+            state.clock.lap(Stage::Continuity, t1);
+            (torn, t.elapsed().as_secs_f64())
+        })
+        .collect()
+}
+
+/// Reach: for each item, the faces beyond its neighbourhood that may hold a smaller |d|, the
+/// vertices whose primary moves onto the region and (strict) the ring's second solutions
+/// (`State::reach_placement`), from the region's maps the primaries stage found.
+pub fn stage_reach(state: &State, batch: &[Candidate], items: &mut [Item], maps: Vec<Vec<Map>>) -> Vec<(Result<Reached, Reject>, f64)> {
+    items
+        .par_iter_mut()
+        .zip(maps.into_par_iter())
+        .map(|(it, maps)| {
+            let t = Instant::now();
+            let r = state.reach_placement(&batch[it.candidate], &it.tris, it.n_region, maps, &mut it.scratch);
+            (r, t.elapsed().as_secs_f64())
+        })
+        .collect()
+}
+
+/// Checks: the exact continuity and orientation checks of each item that reached
+/// (`State::check_placement`): its verdict, with everything commit needs.
+pub fn stage_checks(state: &State, batch: &[Candidate], items: Vec<Item>, reached: Vec<Reached>, memos: &mut [Vec<FailAt>]) -> Vec<(Result<Accepted, Reject>, f64)> {
+    items
+        .into_par_iter()
+        .zip(reached.into_par_iter())
+        .zip(memos.par_iter_mut())
+        .map(|((it, reached), first)| {
+            let t = Instant::now();
+            let r = state.check_placement(&batch[it.candidate], it.position, it.new_dirs, &it.tris, reached, first);
+            (r, t.elapsed().as_secs_f64())
+        })
+        .collect()
+}
+
+/// The items of a wave still in it, each with its candidate's fail memo and the seconds it
+/// took so far.
+struct Wave {
+    items: Vec<Item>,
+    memos: Vec<Vec<FailAt>>,
+    seconds: Vec<f64>,
+}
+
+/// A round's candidates as the waves leave them.
+struct Round {
+    accepted: Vec<Option<Accepted>>,
+    first_reason: Vec<Option<Reject>>,
+    memo: Vec<Vec<FailAt>>,
+    spent: Vec<f64>,
+}
+
+impl Round {
+    /// An item that failed: its memo back to its candidate, the reason and time counted.
+    fn fail(&mut self, state: &State, ci: usize, memo: Vec<FailAt>, reason: Reject, seconds: f64) {
+        state.clock.failed(reason, seconds);
+        self.first_reason[ci].get_or_insert(reason);
+        self.memo[ci] = memo;
+        self.spent[ci] += seconds;
+    }
+
+    /// A stage's results over `wave`: the failed items leave it; the others go on, with what
+    /// the stage gave them.
+    fn sift<T>(&mut self, state: &State, wave: Wave, results: Vec<(Result<T, Reject>, f64)>) -> (Wave, Vec<T>) {
+        let mut next = Wave { items: Vec::with_capacity(results.len()), memos: Vec::new(), seconds: Vec::new() };
+        let mut out = Vec::with_capacity(results.len());
+        for (((it, memo), s0), (r, s)) in wave.items.into_iter().zip(wave.memos).zip(wave.seconds).zip(results) {
+            match r {
+                Ok(x) => {
+                    next.items.push(it);
+                    next.memos.push(memo);
+                    next.seconds.push(s0 + s);
+                    out.push(x);
+                }
+                Err(reason) => self.fail(state, it.candidate, memo, reason, s0 + s),
+            }
+        }
+        (next, out)
+    }
+}
+
+/// Tests a round's candidates through the stages, wave by wave; outcomes in batch order.
+/// Fails only when the device of a GPU `primaries` stage fails.
+pub fn evaluate_round(state: &State, batch: &[Candidate], primaries: &dyn Primaries) -> Result<Vec<Outcome>, GpuError> {
+    let n = batch.len();
+    let mut round = Round {
+        accepted: vec![None; n],
+        first_reason: vec![None; n],
+        // Where each candidate's earlier placements and tries failed (tested first by the next).
+        memo: batch.iter().map(|c| if state.fail_hints { c.first_fail.clone() } else { Vec::new() }).collect(),
+        // A candidate's test time: its items' seconds, every stage and wave (its share of a
+        // shared dispatch not counted).
+        spent: vec![0.0; n],
+    };
+    let mut tried = vec![0usize; n];
+    let waves = batch.iter().map(|c| c.placements.len()).max().unwrap_or(0);
+    for placement in 0..waves {
+        let cands: Vec<usize> = (0..n).filter(|&ci| round.accepted[ci].is_none() && placement < batch[ci].placements.len()).collect();
+        if cands.is_empty() {
+            break;
+        }
+        let mut wave = Wave { items: Vec::with_capacity(cands.len()), memos: Vec::new(), seconds: Vec::new() };
+        for ((built, s), &ci) in stage_neighbourhoods(state, batch, placement, &cands).into_iter().zip(&cands) {
+            tried[ci] += 1;
+            let memo = std::mem::take(&mut round.memo[ci]);
+            match built {
+                Ok(it) => {
+                    wave.items.push(it);
+                    wave.memos.push(memo);
+                    wave.seconds.push(s);
+                }
+                Err(reason) => round.fail(state, ci, memo, reason, s),
+            }
+        }
+        let hinted: Vec<_> = stage_hints(state, batch, &mut wave.items, &mut wave.memos).into_iter().map(|(h, s)| (h.map_or(Ok(()), Err), s)).collect();
+        let (mut wave, _) = round.sift(state, wave, hinted);
+        let solved = primaries.solve(state, batch, &wave.items)?;
+        state.clock.add(Stage::Primaries, (solved.iter().map(|r| r.1).sum::<f64>() * 1e9) as u64);
+        // A region vertex without a solution (or, strict, with two) goes into the memo.
+        let solved: Vec<_> = solved.into_iter().zip(wave.memos.iter_mut()).map(|((r, s), memo)| (r.map_err(|failed| state.note_solve_failure(memo, failed)), s)).collect();
+        let (mut wave, maps) = round.sift(state, wave, solved);
+        let reached = stage_reach(state, batch, &mut wave.items, maps);
+        let (mut wave, reached) = round.sift(state, wave, reached);
+        let cands: Vec<usize> = wave.items.iter().map(|it| it.candidate).collect();
+        let checked = stage_checks(state, batch, std::mem::take(&mut wave.items), reached, &mut wave.memos);
+        for (((ci, memo), s0), (r, s)) in cands.into_iter().zip(wave.memos).zip(wave.seconds).zip(checked) {
+            match r {
+                Ok(acc) => {
+                    round.memo[ci] = memo;
+                    round.spent[ci] += s0 + s;
+                    round.accepted[ci] = Some(Accepted { placement, ..acc });
+                }
+                Err(reason) => round.fail(state, ci, memo, reason, s0 + s),
+            }
+        }
+    }
+    let Round { accepted, first_reason, memo, spent } = round;
+    Ok(accepted
+        .into_iter()
+        .zip(first_reason)
+        .zip(memo)
+        .enumerate()
+        .map(|(ci, ((a, r), at))| {
+            state.clock.candidate(a.is_some(), tried[ci], spent[ci]);
+            match a {
+                Some(acc) => Ok(Accepted { test_s: spent[ci], ..acc }),
+                None => Err(Rejected { reason: r.unwrap_or(Reject::Link), at }),
+            }
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::decimate::{Options, State};
+    use crate::eval::{CpuEvaluator, Evaluator};
+
+    /// An outcome as text, its timing left out: the decisions, maps, reads and memo to the bit.
+    fn decided(o: &Outcome) -> String {
+        match o {
+            Ok(a) => format!("{:?}", Accepted { test_s: 0.0, ..a.clone() }),
+            Err(r) => format!("{r:?}"),
+        }
+    }
+
+    #[test]
+    fn whole_round_waves_decide_as_each_candidate_alone() {
+        // The GPU evaluator's schedule (the whole round, one wave per placement, each stage
+        // over every item of the wave) and the CPU evaluator's (each candidate's waves on their
+        // own) run the same stages: on the same rounds they must give the same outcomes, the
+        // maps, reads and fail memos included. The rounds of a 3k sample, committed as they go.
+        let mesh = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 3000, seed: 7 });
+        let dense = crate::mesh::check_and_compact(std::path::Path::new("sample"), mesh).unwrap();
+        let mut st = State::new(&dense, &Options::default());
+        let (mut marks, mut vmark, mut fmark) = (vec![0u32; dense.positions.len()], vec![0u32; dense.positions.len()], vec![0u32; st.topo.num_faces_total()]);
+        let (mut compared, mut later_waves, mut memos) = (0, 0, 0);
+        for round in 1..=150u32 {
+            let batch = st.pick_collapses(16, &mut marks, round);
+            if batch.is_empty() {
+                break;
+            }
+            let alone = CpuEvaluator.evaluate(&st, &batch).unwrap();
+            let whole = evaluate_round(&st, &batch, &CpuPrimaries).unwrap();
+            assert_eq!(alone.len(), whole.len());
+            for (a, w) in alone.iter().zip(&whole) {
+                assert_eq!(decided(a), decided(w), "round {round}");
+                compared += 1;
+                later_waves += usize::from(a.as_ref().map_or(true, |acc| acc.placement > 0));
+                memos += usize::from(a.as_ref().is_err_and(|r| !r.at.is_empty()));
+            }
+            st.commit_collapses(batch, alone, &mut vmark, &mut fmark, round);
+        }
+        // Measured: 1,104 candidates compared (the run ends before round 150), 475 of them
+        // decided in a later wave, 469 rejections with a memo; −10 %.
+        assert!(compared >= 990 && later_waves >= 425 && memos >= 420, "{compared} compared, {later_waves} in later waves, {memos} memos");
+    }
+}
