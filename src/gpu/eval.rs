@@ -1,6 +1,7 @@
 //! The GPU evaluator: candidate batches and whole validations solved by the WGSL shell kernels
 //! (`shaders/shell.wgsl`), one invocation per (candidate placement, dense vertex) pair or per
-//! dense vertex, with the CPU keeping topology, queue, and the final word.
+//! dense vertex, with the CPU keeping topology, queue, and the final word. For candidates it
+//! is the primaries stage of [`crate::eval::pipeline`]: the other stages are the CPU's.
 //!
 //! The kernels run in f32 and mirror `geometry.rs` and [`find_primary`] 1:1. What f32 cannot
 //! decide the way f64 would — a barycentric coordinate within `BAND_BARY` of 0, a condition (4)
