@@ -114,20 +114,15 @@ impl State {
     /// and only elements the whole test checks are taken: a triangle of `c.dense_faces`, an
     /// edge of one it judges. The whole test would then fail too (which check fails first
     /// changes no verdict), so the placement fails here, without solving the rest; the element
-    /// goes first in `first` again. Not strict (as `State::unmapped_at_hint`).
+    /// goes first in `first` again. Not strict (as [`State::unmapped_at_hint`]).
     pub(crate) fn torn_at_hint(&self, c: &Candidate, tris: &Tris, n_region: usize, first: &mut Vec<FailAt>, scratch: &mut Scratch) -> Option<Reject> {
         let (reason, at) = self.torn_hint(c, tris, n_region, first, scratch)?;
-        self.failed_at_hint(first, at);
+        self.clock.torn_at_hint();
+        note_failure(first, at);
         Some(reason)
     }
 
-    /// A placement failed at hinted element `at`: counted, and `at` first in the memo again.
-    fn failed_at_hint(&self, first: &mut Vec<FailAt>, at: FailAt) {
-        self.clock.torn_at_hint();
-        note_failure(first, at);
-    }
-
-    /// `State::torn_at_hint`'s check without its bookkeeping: the first element of `hints`
+    /// [`State::torn_at_hint`]'s check without its bookkeeping: the first element of `hints`
     /// that fails alone, and why.
     fn torn_hint(&self, c: &Candidate, tris: &Tris, n_region: usize, hints: &[FailAt], scratch: &mut Scratch) -> Option<(Reject, FailAt)> {
         if !self.fail_hints || self.strict {

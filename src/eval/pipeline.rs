@@ -125,24 +125,22 @@ pub fn stage_neighbourhoods(state: &State, batch: &[Candidate], placement: usize
 /// found unmapped, then a dense triangle or edge it found torn or flipped — alone; an item
 /// that fails there fails its whole test (`State::unmapped_at_hint`, `State::torn_at_hint`).
 /// `memos[i]` is item i's candidate's memo.
-pub fn stage_hints(state: &State, batch: &[Candidate], items: &mut [Item], memos: &mut [Vec<FailAt>]) -> Vec<(Option<Reject>, f64)> {
+pub fn stage_hints(state: &State, batch: &[Candidate], items: &mut [Item], memos: &mut [Vec<FailAt>]) -> Vec<(Result<(), Reject>, f64)> {
     items
         .par_iter_mut()
         .zip(memos.par_iter_mut())
         .map(|(it, first)| {
             let t = Instant::now();
             let c = &batch[it.candidate];
-            if state.unmapped_at_hint(c, &it.tris, first, &mut it.scratch) {
-                let s = t.elapsed().as_secs_f64();
-                state.clock.add(Stage::Primaries, (s * 1e9) as u64);
-                return (Some(Reject::Unmapped), s);
+            let unmapped = state.unmapped_at_hint(c, &it.tris, first, &mut it.scratch);
+            let t1 = state.clock.lap(Stage::Primaries, t);
+            if unmapped {
+                return (Err(Reject::Unmapped), t.elapsed().as_secs_f64());
             }
-            let t1 = Instant::now();
-            state.clock.add(Stage::Primaries, (t1 - t).as_nanos() as u64);
             // (Its few solves counted as continuity: it is that stage's hinted check, run early.)
             let torn = state.torn_at_hint(c, &it.tris, it.n_region, first, &mut it.scratch);
             state.clock.lap(Stage::Continuity, t1);
-            (torn, t.elapsed().as_secs_f64())
+            (torn.map_or(Ok(()), Err), t.elapsed().as_secs_f64())
         })
         .collect()
 }
@@ -164,14 +162,15 @@ pub fn stage_reach(state: &State, batch: &[Candidate], items: &mut [Item], maps:
 
 /// Checks: the exact continuity and orientation checks of each item that reached
 /// (`State::check_placement`): its verdict, with everything commit needs.
-pub fn stage_checks(state: &State, batch: &[Candidate], items: Vec<Item>, reached: Vec<Reached>, memos: &mut [Vec<FailAt>]) -> Vec<(Result<Accepted, Reject>, f64)> {
+pub fn stage_checks(state: &State, batch: &[Candidate], items: &mut [Item], reached: Vec<Reached>, memos: &mut [Vec<FailAt>]) -> Vec<(Result<Accepted, Reject>, f64)> {
     items
-        .into_par_iter()
+        .par_iter_mut()
         .zip(reached.into_par_iter())
         .zip(memos.par_iter_mut())
         .map(|((it, reached), first)| {
             let t = Instant::now();
-            let r = state.check_placement(&batch[it.candidate], it.position, it.new_dirs, &it.tris, reached, first);
+            let new_dirs = std::mem::take(&mut it.new_dirs);
+            let r = state.check_placement(&batch[it.candidate], it.position, new_dirs, &it.tris, reached, first);
             (r, t.elapsed().as_secs_f64())
         })
         .collect()
@@ -189,8 +188,13 @@ struct Wave {
 struct Round {
     accepted: Vec<Option<Accepted>>,
     first_reason: Vec<Option<Reject>>,
+    /// Where each candidate's earlier placements and tries failed (tested first by the next).
     memo: Vec<Vec<FailAt>>,
+    /// A candidate's test time: its items' seconds, every stage and wave (its share of a
+    /// shared dispatch not counted).
     spent: Vec<f64>,
+    /// Placements tried per candidate.
+    tried: Vec<usize>,
 }
 
 impl Round {
@@ -229,13 +233,10 @@ pub fn evaluate_round(state: &State, batch: &[Candidate], primaries: &dyn Primar
     let mut round = Round {
         accepted: vec![None; n],
         first_reason: vec![None; n],
-        // Where each candidate's earlier placements and tries failed (tested first by the next).
         memo: batch.iter().map(|c| if state.fail_hints { c.first_fail.clone() } else { Vec::new() }).collect(),
-        // A candidate's test time: its items' seconds, every stage and wave (its share of a
-        // shared dispatch not counted).
         spent: vec![0.0; n],
+        tried: vec![0; n],
     };
-    let mut tried = vec![0usize; n];
     let waves = batch.iter().map(|c| c.placements.len()).max().unwrap_or(0);
     for placement in 0..waves {
         let cands: Vec<usize> = (0..n).filter(|&ci| round.accepted[ci].is_none() && placement < batch[ci].placements.len()).collect();
@@ -244,7 +245,7 @@ pub fn evaluate_round(state: &State, batch: &[Candidate], primaries: &dyn Primar
         }
         let mut wave = Wave { items: Vec::with_capacity(cands.len()), memos: Vec::new(), seconds: Vec::new() };
         for ((built, s), &ci) in stage_neighbourhoods(state, batch, placement, &cands).into_iter().zip(&cands) {
-            tried[ci] += 1;
+            round.tried[ci] += 1;
             let memo = std::mem::take(&mut round.memo[ci]);
             match built {
                 Ok(it) => {
@@ -255,7 +256,7 @@ pub fn evaluate_round(state: &State, batch: &[Candidate], primaries: &dyn Primar
                 Err(reason) => round.fail(state, ci, memo, reason, s),
             }
         }
-        let hinted: Vec<_> = stage_hints(state, batch, &mut wave.items, &mut wave.memos).into_iter().map(|(h, s)| (h.map_or(Ok(()), Err), s)).collect();
+        let hinted = stage_hints(state, batch, &mut wave.items, &mut wave.memos);
         let (mut wave, _) = round.sift(state, wave, hinted);
         let solved = primaries.solve(state, batch, &wave.items)?;
         state.clock.add(Stage::Primaries, (solved.iter().map(|r| r.1).sum::<f64>() * 1e9) as u64);
@@ -264,20 +265,15 @@ pub fn evaluate_round(state: &State, batch: &[Candidate], primaries: &dyn Primar
         let (mut wave, maps) = round.sift(state, wave, solved);
         let reached = stage_reach(state, batch, &mut wave.items, maps);
         let (mut wave, reached) = round.sift(state, wave, reached);
-        let cands: Vec<usize> = wave.items.iter().map(|it| it.candidate).collect();
-        let checked = stage_checks(state, batch, std::mem::take(&mut wave.items), reached, &mut wave.memos);
-        for (((ci, memo), s0), (r, s)) in cands.into_iter().zip(wave.memos).zip(wave.seconds).zip(checked) {
-            match r {
-                Ok(acc) => {
-                    round.memo[ci] = memo;
-                    round.spent[ci] += s0 + s;
-                    round.accepted[ci] = Some(Accepted { placement, ..acc });
-                }
-                Err(reason) => round.fail(state, ci, memo, reason, s0 + s),
-            }
+        let checked = stage_checks(state, batch, &mut wave.items, reached, &mut wave.memos);
+        let (wave, passed) = round.sift(state, wave, checked);
+        for (((it, memo), s), acc) in wave.items.into_iter().zip(wave.memos).zip(wave.seconds).zip(passed) {
+            round.memo[it.candidate] = memo;
+            round.spent[it.candidate] += s;
+            round.accepted[it.candidate] = Some(Accepted { placement, ..acc });
         }
     }
-    let Round { accepted, first_reason, memo, spent } = round;
+    let Round { accepted, first_reason, memo, spent, tried } = round;
     Ok(accepted
         .into_iter()
         .zip(first_reason)

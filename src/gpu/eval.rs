@@ -291,14 +291,11 @@ impl GpuEvaluator {
     /// each placement's neighbourhood: for the parity test, which compares them with
     /// [`find_primary`] on the same neighbourhoods.
     pub fn raw_answers(&self, state: &State, batch: &[Candidate]) -> Result<Vec<(usize, usize, Tris, Vec<GpuAnswer>)>, GpuError> {
+        let waves = batch.iter().map(|c| c.placements.len()).max().unwrap_or(0);
         let mut built = Vec::new();
-        for (ci, c) in batch.iter().enumerate() {
-            for (pi, &p) in c.placements.iter().enumerate() {
-                let mut tris = Tris::default();
-                if state.build_neighbourhood(c, p, &mut tris).is_ok() {
-                    built.push((ci, pi, tris));
-                }
-            }
+        for pi in 0..waves {
+            let cands: Vec<usize> = (0..batch.len()).filter(|&ci| pi < batch[ci].placements.len()).collect();
+            built.extend(pipeline::stage_neighbourhoods(state, batch, pi, &cands).into_iter().filter_map(|(it, _)| it.ok()).map(|it| (it.candidate, pi, it.tris)));
         }
         let (gtris, queries, first) = Self::queries(state, batch, built.iter().map(|(ci, _, t)| (*ci, t)));
         let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
