@@ -2,7 +2,10 @@
 // solve_constant, condition4, triangle_distance) and of eval::find_primary.
 //
 // One invocation per query (a dense vertex of a candidate's neighbourhood, or a dense vertex of
-// a whole validation). Functions keep the Rust names and order of operations. Where f32 cannot
+// a whole validation). Functions keep the Rust names and order of operations. A search keeps
+// its roots, hits and solutions in named scalars, never in a local array indexed by a value
+// that differs between invocations (see Roots): the validator's BVH stack is the one such
+// array. Where f32 cannot
 // decide what f64 would (a barycentric coordinate near 0, a dot product of condition (4) near 0,
 // |d| near dmax, a near-tangent root, two triangles within BAND_D of the same |d|), the answer
 // is STATUS_BAND and the CPU decides that query in f64 (the tolerance band of the README).
@@ -170,62 +173,87 @@ fn polish_root(c: vec4<f32>, lo_in: f32, hi_in: f32, flo: f32, fhi: f32) -> f32 
 
 // Roots in t ∈ [-T_END, T_END] (T_END = 1 + BAND_T: roots just past dmax are reported so that
 // the caller can mark them), ascending, with the smallest |t| of a near-tangent critical point.
+// (Scalars, not an array: a local array indexed by a varying index costs a loop over the lanes
+// on a CPU adapter such as lavapipe, and local memory on a GPU.)
 struct Roots {
     n: u32,
-    r: array<f32, 3>,
+    r0: f32,
+    r1: f32,
+    r2: f32,
     tangent: f32,
+}
+
+// Root i (< n) of `roots`.
+fn root_at(roots: Roots, i: u32) -> f32 {
+    if (i == 0u) {
+        return roots.r0;
+    }
+    if (i == 1u) {
+        return roots.r1;
+    }
+    return roots.r2;
 }
 
 fn push_root(roots: ptr<function, Roots>, r: f32) {
     let n = (*roots).n;
-    if (n > 0u && abs(r - (*roots).r[n - 1u]) <= F32_ROOT_DEDUP) {
+    if (n > 0u && abs(r - root_at(*roots, n - 1u)) <= F32_ROOT_DEDUP) {
         return;
     }
+    if (n == 0u) {
+        (*roots).r0 = r;
+    } else if (n == 1u) {
+        (*roots).r1 = r;
+    } else if (n == 2u) {
+        (*roots).r2 = r;
+    }
     if (n < 3u) {
-        (*roots).r[n] = r;
         (*roots).n = n + 1u;
     }
 }
 
+// One monotone piece [lo, hi] of the normalised cubic (values flo, fhi): its root, if any; a
+// piece that starts at a critical point (not the first) notes a near-tangent contact.
+fn root_piece(roots: ptr<function, Roots>, c: vec4<f32>, lo: f32, hi: f32, flo: f32, fhi: f32, first: bool) {
+    if (!first && abs(flo) <= BAND_TANGENT) {
+        // Near-tangent contact: f64 may see a double root here, or none, or two.
+        (*roots).tangent = min((*roots).tangent, abs(lo));
+    }
+    if (flo == 0.0) {
+        push_root(roots, lo);
+        return;
+    }
+    if ((flo < 0.0) != (fhi < 0.0) || fhi == 0.0) {
+        push_root(roots, polish_root(c, lo, hi, flo, fhi));
+    }
+}
+
 fn cubic_roots_in_unit(c_in: vec4<f32>) -> Roots {
-    var roots = Roots(0u, array<f32, 3>(0.0, 0.0, 0.0), F32_INF);
+    var roots = Roots(0u, 0.0, 0.0, 0.0, F32_INF);
     let scale = max(max(abs(c_in.x), abs(c_in.y)), max(abs(c_in.z), abs(c_in.w)));
     if (!(scale > 0.0) || scale > F32_MAX) {
         return roots;
     }
     let c = c_in / scale;
     let crit = quadratic_roots(3.0 * c.w, 2.0 * c.z, c.y);
-    var knots = array<f32, 4>(-T_END, T_END, T_END, T_END);
-    var nk = 1u;
+    // The pieces between -T_END, the critical points inside, and T_END.
+    var lo = -T_END;
+    var flo = poly_eval(c, lo);
+    var first = true;
     if (crit.n >= 1u && crit.r0 > -T_END && crit.r0 < T_END) {
-        knots[nk] = crit.r0;
-        nk += 1u;
+        let fhi = poly_eval(c, crit.r0);
+        root_piece(&roots, c, lo, crit.r0, flo, fhi, first);
+        lo = crit.r0;
+        flo = fhi;
+        first = false;
     }
     if (crit.n >= 2u && crit.r1 > -T_END && crit.r1 < T_END) {
-        knots[nk] = crit.r1;
-        nk += 1u;
+        let fhi = poly_eval(c, crit.r1);
+        root_piece(&roots, c, lo, crit.r1, flo, fhi, first);
+        lo = crit.r1;
+        flo = fhi;
+        first = false;
     }
-    knots[nk] = T_END;
-    nk += 1u;
-    var f_prev = poly_eval(c, knots[0]);
-    for (var k = 0u; k + 1u < nk; k++) {
-        let lo = knots[k];
-        let hi = knots[k + 1u];
-        let flo = f_prev;
-        let fhi = poly_eval(c, hi);
-        f_prev = fhi;
-        if (k > 0u && abs(flo) <= BAND_TANGENT) {
-            // Near-tangent contact: f64 may see a double root here, or none, or two.
-            roots.tangent = min(roots.tangent, abs(lo));
-        }
-        if (flo == 0.0) {
-            push_root(&roots, lo);
-            continue;
-        }
-        if ((flo < 0.0) != (fhi < 0.0) || fhi == 0.0) {
-            push_root(&roots, polish_root(c, lo, hi, flo, fhi));
-        }
-    }
+    root_piece(&roots, c, lo, T_END, flo, poly_eval(c, T_END), first);
     return roots;
 }
 
@@ -253,16 +281,29 @@ fn clamp_bary(b: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(1.0 / 3.0);
 }
 
-// Up to three hits of one triangle, and the smallest |d| of an event f32 cannot decide.
+// Up to three hits of one triangle (barycentrics xyz, d in w), and the smallest |d| of an event
+// f32 cannot decide. (Scalars, not arrays: see Roots.)
 struct Hits {
     n: u32,
-    d: array<f32, 3>,
-    bary: array<vec3<f32>, 3>,
+    h0: vec4<f32>,
+    h1: vec4<f32>,
+    h2: vec4<f32>,
     marginal: f32,
 }
 
 fn no_hits() -> Hits {
-    return Hits(0u, array<f32, 3>(0.0, 0.0, 0.0), array<vec3<f32>, 3>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0)), F32_INF);
+    return Hits(0u, vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), F32_INF);
+}
+
+// Hit i (< n) of `hits`: barycentrics xyz, d in w.
+fn hit_at(hits: Hits, i: u32) -> vec4<f32> {
+    if (i == 0u) {
+        return hits.h0;
+    }
+    if (i == 1u) {
+        return hits.h1;
+    }
+    return hits.h2;
 }
 
 // Classifies one candidate solution (d, raw barycentrics) as f64 would, noting undecidable ones.
@@ -281,8 +322,14 @@ fn push_hit(hits: ptr<function, Hits>, d: f32, b: vec4<f32>, dmax: f32) {
     }
     if (mb >= -BARY_EPS && ad <= dmax && (*hits).n < 3u) {
         let n = (*hits).n;
-        (*hits).d[n] = d;
-        (*hits).bary[n] = clamp_bary(b.xyz);
+        let h = vec4<f32>(clamp_bary(b.xyz), d);
+        if (n == 0u) {
+            (*hits).h0 = h;
+        } else if (n == 1u) {
+            (*hits).h1 = h;
+        } else {
+            (*hits).h2 = h;
+        }
         (*hits).n = n + 1u;
     }
 }
@@ -297,7 +344,7 @@ fn solve_shell(x: vec3<f32>, t: Tri, dmax: f32) -> Hits {
         hits.marginal = roots.tangent * s;
     }
     for (var i = 0u; i < roots.n; i++) {
-        let d = roots.r[i] * s;
+        let d = root_at(roots, i) * s;
         let q0 = t.p0.xyz + d * t.n0.xyz;
         let q1 = t.p1.xyz + d * t.n1.xyz;
         let q2 = t.p2.xyz + d * t.n2.xyz;
@@ -403,7 +450,20 @@ struct Search {
     count: u32,
     close: u32,
     best_bary: vec3<f32>,
-    found: array<vec3<f32>, 4>,
+    // The first four distinct solutions (strict), as scalars (see Roots).
+    found0: vec3<f32>,
+    found1: vec3<f32>,
+    found2: vec3<f32>,
+    found3: vec3<f32>,
+}
+
+// Whether strict search `s` already holds the solution at image point p (one of its first
+// four, within BAND_POS·dmax).
+fn found_before(s: ptr<function, Search>, p: vec3<f32>) -> bool {
+    let n = (*s).count;
+    let near = BAND_POS * params.dmax;
+    return (n > 0u && distance((*s).found0, p) <= near) || (n > 1u && distance((*s).found1, p) <= near)
+        || (n > 2u && distance((*s).found2, p) <= near) || (n > 3u && distance((*s).found3, p) <= near);
 }
 
 fn search_limit(s: ptr<function, Search>, strict: bool) -> f32 {
@@ -416,12 +476,14 @@ fn search_limit(s: ptr<function, Search>, strict: bool) -> f32 {
 fn visit_triangle(s: ptr<function, Search>, x: vec3<f32>, q: Query, ti: u32) {
     let strict = (q.flags & FLAG_STRICT) != 0u;
     let check4 = (q.flags & FLAG_CHECK4) != 0u;
-    let t = tris[ti];
     let limit = search_limit(s, strict);
     let slack = BAND_D * params.dmax;
-    if (distance(x, t.sphere.xyz) - t.sphere.w - slack > limit) {
+    // The sphere alone first: most triangles go no further.
+    let sphere = tris[ti].sphere;
+    if (distance(x, sphere.xyz) - sphere.w - slack > limit) {
         return;
     }
+    let t = tris[ti];
     if (triangle_distance(x, t) - slack > limit) {
         return;
     }
@@ -433,9 +495,10 @@ fn visit_triangle(s: ptr<function, Search>, x: vec3<f32>, q: Query, ti: u32) {
     }
     (*s).marginal = min((*s).marginal, hits.marginal);
     for (var i = 0u; i < hits.n; i++) {
-        let d = hits.d[i];
+        let h = hit_at(hits, i);
+        let d = h.w;
         let ad = abs(d);
-        let b = hits.bary[i];
+        let b = h.xyz;
         if (check4) {
             let dir = direction_at(t, b);
             let m = condition4(dir, q.vertex);
@@ -448,19 +511,20 @@ fn visit_triangle(s: ptr<function, Search>, x: vec3<f32>, q: Query, ti: u32) {
         }
         if (strict) {
             let p = interpolate_direction(t.p0.xyz, t.p1.xyz, t.p2.xyz, b);
-            var same = false;
-            for (var k = 0u; k < min((*s).count, 4u); k++) {
-                if (distance((*s).found[k], p) <= BAND_POS * params.dmax) {
-                    same = true;
-                }
-            }
-            if (same) {
+            if (found_before(s, p)) {
                 (*s).close = 1u;
             } else {
-                if ((*s).count < 4u) {
-                    (*s).found[(*s).count] = p;
+                let n = (*s).count;
+                if (n == 0u) {
+                    (*s).found0 = p;
+                } else if (n == 1u) {
+                    (*s).found1 = p;
+                } else if (n == 2u) {
+                    (*s).found2 = p;
+                } else if (n == 3u) {
+                    (*s).found3 = p;
                 }
-                (*s).count += 1u;
+                (*s).count = n + 1u;
             }
         }
         if ((*s).best_tri == INVALID) {

@@ -191,9 +191,9 @@ fn report(name: &str, p: &Parity, band_measured: f64, min_decided: u64) {
 }
 
 /// Band shares measured on this machine (lavapipe), `cargo test --release --test shell_kernels
-/// parity -- --nocapture`.
-const INTERP_BAND: f64 = 0.104;
-/// Constant mode at 45,000 faces: 61.4 % in the band, nearly all ties (a dense vertex on a base
+/// parity -- --nocapture` (2026-12-06: 13.8 % interpolated, 90.1 % strict, 61.3 % constant).
+const INTERP_BAND: f64 = 0.138;
+/// Constant mode at 45,000 faces: 61.3 % in the band, nearly all ties (a dense vertex on a base
 /// edge or vertex at d = 0, found by every face around it).
 const CONST_BAND: f64 = 0.614;
 
@@ -214,7 +214,7 @@ fn parity_strict_and_constant_bunny() {
         return;
     }
     let p = parity_on_bunny(gpu, Options { strict: true, ..Options::default() }, &[30_000]);
-    report("strict", &p, 0.892, 500);
+    report("strict", &p, 0.901, 500);
     let gpu = vulkan().unwrap();
     // Constant mode stops at ~38,600 faces on the bunny (README, Modes): a stage above it.
     let p = parity_on_bunny(gpu, Options { normals: NormalMode::Constant, ..Options::default() }, &[45_000]);
