@@ -621,9 +621,6 @@ fn run(cli: Cli) -> Result<i32> {
             Ok(0)
         }
         Cmd::Bench { json, runs, data, meshes, configs, work, batch } => {
-            if runs == 0 {
-                return Err(dispdec::Error::Usage("--runs must be at least 1".into()).into());
-            }
             let data = data
                 .or_else(|| std::env::var_os("DISPDEC_DATA").map(PathBuf::from))
                 .unwrap_or_else(|| PathBuf::from("../shared/data"));

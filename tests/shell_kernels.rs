@@ -414,4 +414,7 @@ fn bench_compares_the_paths_on_the_same_input() {
     let o = run(&["bench", "--meshes", scan.to_str().unwrap(), "--batch", "0", "--work", dir.join("work0").to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--batch must be at least 1"));
+    let o = run(&["bench", "--meshes", scan.to_str().unwrap(), "--runs", "0", "--work", dir.join("work0").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--runs must be at least 1"));
 }

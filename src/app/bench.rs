@@ -342,6 +342,9 @@ impl QuadricInput {
 
 /// Runs the benchmark; `progress` gets one line per finished run.
 pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchReport, Error> {
+    if job.runs == 0 {
+        return Err(Error::Usage("--runs must be at least 1".into()));
+    }
     crate::app::run::check_batch(job.batch)?;
     if let Some(json) = &job.json {
         let scans: Vec<PathBuf> = job.meshes.iter().filter_map(|m| named_file(job, m)).collect();
