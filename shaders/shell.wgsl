@@ -2,13 +2,14 @@
 // solve_constant, condition4, triangle_distance) and of eval::find_primary.
 //
 // One invocation per query (a dense vertex of a candidate's neighbourhood, or a dense vertex of
-// a whole validation). Functions keep the Rust names and order of operations. A search keeps
-// its roots, hits and solutions in named scalars, never in a local array indexed by a value
-// that differs between invocations (see Roots): the validator's BVH stack is the one such
-// array. Where f32 cannot
+// a whole validation). Functions keep the Rust names and order of operations. Where f32 cannot
 // decide what f64 would (a barycentric coordinate near 0, a dot product of condition (4) near 0,
 // |d| near dmax, a near-tangent root, two triangles within BAND_D of the same |d|), the answer
 // is STATUS_BAND and the CPU decides that query in f64 (the tolerance band of the README).
+//
+// A search keeps its roots, hits and solutions in named scalars, never in a local array indexed
+// by a value that differs between invocations (see Roots); the validator's BVH stack is the one
+// such array.
 //
 // The constants (BARY_EPS, BAND_*, STATUS_*, ...) are generated from Rust and prepended:
 // see gpu_eval::shell_source.
