@@ -14,8 +14,10 @@
 //! ```
 //!
 //! The CPU evaluator runs each candidate's waves as a round of its own (its stages split over
-//! the threads inside: a candidate whose placement fails goes on to the next at once); the GPU
-//! evaluator runs the whole round's waves, one dispatch per wave.
+//! the threads inside: a candidate whose placement fails goes on to the next at once). The GPU
+//! evaluator gathers and hints the round's first wave together, solves its regions in one
+//! dispatch, then lets each candidate go on alone ([`Round::finish_each_alone`]): one dispatch
+//! a round, and no candidate waits at a stage for another.
 //!
 //! An item that fails leaves the wave at its stage; its candidate's fail memo (where it
 //! failed, tested first by its next placement and its next try) goes on to the next wave. A
@@ -37,6 +39,8 @@ use std::time::Instant;
 pub struct Item {
     /// Index of the candidate in the round's batch.
     pub candidate: usize,
+    /// Which of its placements.
+    pub placement: usize,
     pub position: DVec3,
     /// New directions of the kept vertex and its ring.
     pub new_dirs: Vec<(u32, DVec3)>,
@@ -51,8 +55,9 @@ pub struct Item {
 pub type Solved = Result<Vec<Map>, (Reject, u32)>;
 
 /// The primaries stage: every region vertex of every item over its neighbourhood. The CPU's
-/// is the f64 search ([`CpuPrimaries`]); the GPU's, the WGSL kernel with its tolerance band
-/// (`gpu::eval`). Both give the same answers (the band's whole point).
+/// is the f64 search ([`CpuPrimaries`]); the GPU's, the WGSL kernel's answers from the
+/// round's dispatch, settled through its tolerance band (`gpu::eval`). Both give the same
+/// answers (the band's whole point).
 pub trait Primaries: Sync {
     /// The solutions of `items` (all of them: the wave's survivors of the hint stage), in
     /// order, each with the CPU seconds spent on it alone (a shared dispatch not counted).
@@ -108,6 +113,7 @@ pub fn stage_neighbourhoods(state: &State, batch: &[Candidate], placement: usize
             let mut tris = Tris::default();
             let built = state.build_neighbourhood(c, position, &mut tris).map(|(new_dirs, n_region)| Item {
                 candidate: ci,
+                placement,
                 position,
                 new_dirs,
                 n_region,
@@ -178,32 +184,66 @@ pub fn stage_checks(state: &State, batch: &[Candidate], items: &mut [Item], reac
 
 /// The items of a wave still in it, each with its candidate's fail memo and the seconds it
 /// took so far.
-struct Wave {
+#[derive(Default)]
+pub struct Wave {
     items: Vec<Item>,
     memos: Vec<Vec<FailAt>>,
     seconds: Vec<f64>,
 }
 
-/// A round's candidates as the waves leave them.
-struct Round {
-    accepted: Vec<Option<Accepted>>,
-    first_reason: Vec<Option<Reject>>,
-    /// Where each candidate's earlier placements and tries failed (tested first by the next).
-    memo: Vec<Vec<FailAt>>,
-    /// A candidate's test time: its items' seconds, every stage and wave (its share of a
-    /// shared dispatch not counted).
-    spent: Vec<f64>,
-    /// Placements tried per candidate.
-    tried: Vec<usize>,
+impl Wave {
+    /// The wave's items, in batch order.
+    pub fn items(&self) -> &[Item] {
+        &self.items
+    }
+
+    /// The wave split by candidate: entry ci holds candidate ci's item (as candidate 0 of a
+    /// batch of its own), or none.
+    fn split(self, n: usize) -> Vec<Wave> {
+        let mut out: Vec<Wave> = (0..n).map(|_| Wave::default()).collect();
+        for ((it, memo), s) in self.items.into_iter().zip(self.memos).zip(self.seconds) {
+            let w = &mut out[it.candidate];
+            w.items.push(Item { candidate: 0, ..it });
+            w.memos.push(memo);
+            w.seconds.push(s);
+        }
+        out
+    }
+}
+
+/// One candidate's test as the waves leave it.
+#[derive(Default)]
+struct Tally {
+    accepted: Option<Accepted>,
+    first_reason: Option<Reject>,
+    /// Where its earlier placements and tries failed (tested first by the next).
+    memo: Vec<FailAt>,
+    /// Its test time: its items' seconds, every stage and wave (its share of a shared
+    /// dispatch not counted).
+    spent: f64,
+    /// Placements tried.
+    tried: usize,
+}
+
+/// A round's candidates as the waves leave them, in batch order.
+pub struct Round {
+    tallies: Vec<Tally>,
 }
 
 impl Round {
+    /// The round of `batch` before its first wave: each candidate with its fail memo.
+    pub fn new(state: &State, batch: &[Candidate]) -> Round {
+        let memo = |c: &Candidate| if state.fail_hints { c.first_fail.clone() } else { Vec::new() };
+        Round { tallies: batch.iter().map(|c| Tally { memo: memo(c), ..Tally::default() }).collect() }
+    }
+
     /// An item that failed: its memo back to its candidate, the reason and time counted.
     fn fail(&mut self, state: &State, ci: usize, memo: Vec<FailAt>, reason: Reject, seconds: f64) {
         state.clock.failed(reason, seconds);
-        self.first_reason[ci].get_or_insert(reason);
-        self.memo[ci] = memo;
-        self.spent[ci] += seconds;
+        let t = &mut self.tallies[ci];
+        t.first_reason.get_or_insert(reason);
+        t.memo = memo;
+        t.spent += seconds;
     }
 
     /// A stage's results over `wave`: the failed items leave it; the others go on, with what
@@ -224,69 +264,108 @@ impl Round {
         }
         (next, out)
     }
-}
 
-/// Tests a round's candidates through the stages, wave by wave; outcomes in batch order.
-/// Fails only when the device of a GPU `primaries` stage fails.
-pub fn evaluate_round(state: &State, batch: &[Candidate], primaries: &dyn Primaries) -> Result<Vec<Outcome>, GpuError> {
-    let n = batch.len();
-    let mut round = Round {
-        accepted: vec![None; n],
-        first_reason: vec![None; n],
-        memo: batch.iter().map(|c| if state.fail_hints { c.first_fail.clone() } else { Vec::new() }).collect(),
-        spent: vec![0.0; n],
-        tried: vec![0; n],
-    };
-    let waves = batch.iter().map(|c| c.placements.len()).max().unwrap_or(0);
-    for placement in 0..waves {
-        let cands: Vec<usize> = (0..n).filter(|&ci| round.accepted[ci].is_none() && placement < batch[ci].placements.len()).collect();
+    /// Gather and hints of wave `placement` — placement `placement` of every candidate still
+    /// undecided that has one —: the items that pass the hints (`None`: no candidate has it).
+    pub fn gather(&mut self, state: &State, batch: &[Candidate], placement: usize) -> Option<Wave> {
+        let cands: Vec<usize> = (0..batch.len()).filter(|&ci| self.tallies[ci].accepted.is_none() && placement < batch[ci].placements.len()).collect();
         if cands.is_empty() {
-            break;
+            return None;
         }
         let mut wave = Wave { items: Vec::with_capacity(cands.len()), memos: Vec::new(), seconds: Vec::new() };
         for ((built, s), &ci) in stage_neighbourhoods(state, batch, placement, &cands).into_iter().zip(&cands) {
-            round.tried[ci] += 1;
-            let memo = std::mem::take(&mut round.memo[ci]);
+            self.tallies[ci].tried += 1;
+            let memo = std::mem::take(&mut self.tallies[ci].memo);
             match built {
                 Ok(it) => {
                     wave.items.push(it);
                     wave.memos.push(memo);
                     wave.seconds.push(s);
                 }
-                Err(reason) => round.fail(state, ci, memo, reason, s),
+                Err(reason) => self.fail(state, ci, memo, reason, s),
             }
         }
         let hinted = stage_hints(state, batch, &mut wave.items, &mut wave.memos);
-        let (mut wave, _) = round.sift(state, wave, hinted);
+        Some(self.sift(state, wave, hinted).0)
+    }
+
+    /// Primaries, reach and checks of a gathered wave of placement `placement`.
+    fn test(&mut self, state: &State, batch: &[Candidate], primaries: &dyn Primaries, wave: Wave, placement: usize) -> Result<(), GpuError> {
+        let mut wave = wave;
         let solved = primaries.solve(state, batch, &wave.items)?;
         state.clock.add(Stage::Primaries, (solved.iter().map(|r| r.1).sum::<f64>() * 1e9) as u64);
         // A region vertex without a solution (or, strict, with two) goes into the memo.
         let solved: Vec<_> = solved.into_iter().zip(wave.memos.iter_mut()).map(|((r, s), memo)| (r.map_err(|failed| state.note_solve_failure(memo, failed)), s)).collect();
-        let (mut wave, maps) = round.sift(state, wave, solved);
+        let (mut wave, maps) = self.sift(state, wave, solved);
         let reached = stage_reach(state, batch, &mut wave.items, maps);
-        let (mut wave, reached) = round.sift(state, wave, reached);
+        let (mut wave, reached) = self.sift(state, wave, reached);
         let checked = stage_checks(state, batch, &mut wave.items, reached, &mut wave.memos);
-        let (wave, passed) = round.sift(state, wave, checked);
+        let (wave, passed) = self.sift(state, wave, checked);
         for (((it, memo), s), acc) in wave.items.into_iter().zip(wave.memos).zip(wave.seconds).zip(passed) {
-            round.memo[it.candidate] = memo;
-            round.spent[it.candidate] += s;
-            round.accepted[it.candidate] = Some(Accepted { placement, ..acc });
+            let t = &mut self.tallies[it.candidate];
+            t.memo = memo;
+            t.spent += s;
+            t.accepted = Some(Accepted { placement, ..acc });
         }
+        Ok(())
     }
-    let Round { accepted, first_reason, memo, spent, tried } = round;
-    Ok(accepted
-        .into_iter()
-        .zip(first_reason)
-        .zip(memo)
-        .enumerate()
-        .map(|(ci, ((a, r), at))| {
-            state.clock.candidate(a.is_some(), tried[ci], spent[ci]);
-            match a {
-                Some(acc) => Ok(Accepted { test_s: spent[ci], ..acc }),
-                None => Err(Rejected { reason: r.unwrap_or(Reject::Link), at }),
-            }
-        })
-        .collect())
+
+    /// The waves from placement `from` on.
+    fn run(&mut self, state: &State, batch: &[Candidate], primaries: &dyn Primaries, from: usize) -> Result<(), GpuError> {
+        let waves = batch.iter().map(|c| c.placements.len()).max().unwrap_or(0);
+        for placement in from..waves {
+            let Some(wave) = self.gather(state, batch, placement) else { break };
+            self.test(state, batch, primaries, wave, placement)?;
+        }
+        Ok(())
+    }
+
+    /// The outcomes, in batch order.
+    fn outcomes(self, state: &State) -> Vec<Outcome> {
+        self.tallies
+            .into_iter()
+            .map(|t| {
+                state.clock.candidate(t.accepted.is_some(), t.tried, t.spent);
+                match t.accepted {
+                    Some(acc) => Ok(Accepted { test_s: t.spent, ..acc }),
+                    None => Err(Rejected { reason: t.first_reason.unwrap_or(Reject::Link), at: t.memo }),
+                }
+            })
+            .collect()
+    }
+
+    /// The rest of the round after its first wave's gather and hints (`first`), each
+    /// candidate on its own as in [`evaluate_round`] of a batch of one, its primaries stage
+    /// `primaries(ci)` (the GPU's: the first placement's answers from the round's dispatch, a
+    /// later placement's by the f64 search, at once). The GPU evaluator's schedule: one
+    /// dispatch a round, for its first wave, and no candidate waits for another's stage.
+    pub fn finish_each_alone<P: Primaries>(self, state: &State, batch: &[Candidate], first: Wave, primaries: impl Fn(usize) -> P + Sync) -> Result<Vec<Outcome>, GpuError> {
+        let waves = first.split(batch.len());
+        batch
+            .par_iter()
+            .zip(self.tallies)
+            .zip(waves)
+            .enumerate()
+            .map(|(ci, ((c, tally), wave))| {
+                let one = std::slice::from_ref(c);
+                let mut alone = Round { tallies: vec![tally] };
+                let primaries = primaries(ci);
+                if !wave.items.is_empty() {
+                    alone.test(state, one, &primaries, wave, 0)?;
+                }
+                alone.run(state, one, &primaries, 1)?;
+                Ok(alone.outcomes(state).remove(0))
+            })
+            .collect()
+    }
+}
+
+/// Tests a round's candidates through the stages, wave by wave; outcomes in batch order.
+/// Fails only when the device of a GPU `primaries` stage fails.
+pub fn evaluate_round(state: &State, batch: &[Candidate], primaries: &dyn Primaries) -> Result<Vec<Outcome>, GpuError> {
+    let mut round = Round::new(state, batch);
+    round.run(state, batch, primaries, 0)?;
+    Ok(round.outcomes(state))
 }
 
 #[cfg(test)]
@@ -305,10 +384,12 @@ mod tests {
 
     #[test]
     fn whole_round_waves_decide_as_each_candidate_alone() {
-        // The GPU evaluator's schedule (the whole round, one wave per placement, each stage
-        // over every item of the wave) and the CPU evaluator's (each candidate's waves on their
-        // own) run the same stages: on the same rounds they must give the same outcomes, the
-        // maps, reads and fail memos included. The rounds of a 3k sample, committed as they go.
+        // Three schedules of the same stages — the whole round, one wave per placement, each
+        // stage over every item of the wave; the round's first wave gathered and hinted
+        // together, then each candidate alone (the GPU evaluator's, `Round::finish_each_alone`,
+        // here with the f64 primaries); each candidate's waves on their own (the CPU
+        // evaluator's) — must give the same outcomes on the same rounds, the maps, reads and
+        // fail memos included. The rounds of a 3k sample, committed as they go.
         let mesh = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 3000, seed: 7 });
         let dense = crate::mesh::check_and_compact(std::path::Path::new("sample"), mesh).unwrap();
         let mut st = State::new(&dense, &Options::default());
@@ -321,9 +402,14 @@ mod tests {
             }
             let alone = CpuEvaluator.evaluate(&st, &batch).unwrap();
             let whole = evaluate_round(&st, &batch, &CpuPrimaries).unwrap();
+            let mut first = Round::new(&st, &batch);
+            let wave = first.gather(&st, &batch, 0).unwrap_or_default();
+            let then_alone = first.finish_each_alone(&st, &batch, wave, |_| CpuPrimaries).unwrap();
             assert_eq!(alone.len(), whole.len());
-            for (a, w) in alone.iter().zip(&whole) {
+            assert_eq!(alone.len(), then_alone.len());
+            for ((a, w), f) in alone.iter().zip(&whole).zip(&then_alone) {
                 assert_eq!(decided(a), decided(w), "round {round}");
+                assert_eq!(decided(a), decided(f), "round {round}, first wave together");
                 compared += 1;
                 later_waves += usize::from(a.as_ref().map_or(true, |acc| acc.placement > 0));
                 memos += usize::from(a.as_ref().is_err_and(|r| !r.at.is_empty()));

@@ -140,6 +140,9 @@ pub struct BandStats {
     /// GPU hits whose triangle had no f64 solution (then solved in full in f64): disagreements
     /// outside the band. Expected 0.
     pub disagreements: u64,
+    /// Region vertices of placements after a candidate's first (tried when the first failed),
+    /// solved by the f64 search on the CPU rather than in another dispatch: not in `queries`.
+    pub later_placement_vertices: u64,
     /// Seconds in the kernels (upload, dispatch, readback).
     pub kernel_s: f64,
 }
@@ -254,9 +257,15 @@ impl GpuEvaluator {
         }
     }
 
-    /// The kernel's buffers for a wave: each item's neighbourhood (relative to its first
-    /// corner) and one query per region vertex (`Candidate::dense` order), and where each
-    /// item's queries start.
+    fn add_later_placement(&self, vertices: usize) {
+        if let Ok(mut s) = self.stats.lock() {
+            s.later_placement_vertices += vertices as u64;
+        }
+    }
+
+    /// The kernel's buffers for a round's first wave (or the parity test's placements): each
+    /// item's neighbourhood (relative to its first corner) and one query per region vertex
+    /// (`Candidate::dense` order), and where each item's queries start.
     fn queries<'a>(state: &State, batch: &[Candidate], items: impl Iterator<Item = (usize, &'a Tris)>) -> (Vec<GpuTri>, Vec<GpuQuery>, Vec<usize>) {
         let (mut gtris, mut queries, mut first) = (Vec::new(), Vec::new(), Vec::new());
         for (ci, tris) in items {
@@ -382,29 +391,56 @@ impl Evaluator for GpuEvaluator {
         format!("gpu: {}", self.adapter())
     }
 
-    /// The CPU's stages ([`pipeline::evaluate_round`]) with the kernel as the primaries stage.
+    /// One dispatch a round: every candidate's first placement gathered and hinted over the
+    /// round, and the regions of those that pass solved by the kernel at once; then each
+    /// candidate on its own, as on the CPU path ([`pipeline::Round::finish_each_alone`]): its
+    /// first placement's primaries settled from the kernel's answers, a later placement's
+    /// (after the first failed) by the f64 search, at once, rather than wait for the round's
+    /// next dispatch.
     fn evaluate(&self, state: &State, batch: &[Candidate]) -> Result<Vec<Outcome>, GpuError> {
-        pipeline::evaluate_round(state, batch, self)
+        let mut round = pipeline::Round::new(state, batch);
+        let Some(first) = round.gather(state, batch, 0) else {
+            return round.finish_each_alone(state, batch, Default::default(), |_| FirstPlacement { gpu: self, answers: &[] });
+        };
+        let (gtris, queries, starts) = Self::queries(state, batch, first.items().iter().map(|it| (it.candidate, &it.tris)));
+        let t0 = Instant::now();
+        let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
+        self.add_stats(&answers, 0, t0.elapsed().as_secs_f64());
+        // Where each candidate's answers lie (a candidate with no item has none).
+        let mut at = vec![(0, 0); batch.len()];
+        for (it, q) in first.items().iter().zip(starts) {
+            at[it.candidate] = (q, q + batch[it.candidate].dense.len());
+        }
+        round.finish_each_alone(state, batch, first, |ci| FirstPlacement { gpu: self, answers: &answers[at[ci].0..at[ci].1] })
     }
 }
 
-/// The primaries stage on the GPU: one dispatch for every region vertex of every item of the
-/// wave, then each answer settled on the CPU ([`settle`]: outside the band the kernel's
-/// triangle redone in f64, in it the whole f64 search).
-impl Primaries for GpuEvaluator {
+/// The primaries stage of one candidate on the GPU path: its first placement's regions
+/// settled from the kernel's answers ([`settle`]: outside the band the kernel's triangle redone
+/// in f64, in it the whole f64 search); a later placement's by the f64 search
+/// ([`pipeline::CpuPrimaries`]).
+struct FirstPlacement<'a> {
+    gpu: &'a GpuEvaluator,
+    /// The kernel's answers for the candidate's first placement (`Candidate::dense` order).
+    answers: &'a [GpuAnswer],
+}
+
+impl Primaries for FirstPlacement<'_> {
     fn solve(&self, state: &State, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64)>, GpuError> {
-        let (gtris, queries, first) = Self::queries(state, batch, items.iter().map(|it| (it.candidate, &it.tris)));
-        let t0 = Instant::now();
-        let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
-        let kernel_s = t0.elapsed().as_secs_f64();
-        let results: Vec<(Solved, u64, f64)> = items
-            .par_iter()
-            .zip(first)
-            .map(|(it, q)| {
-                let t = Instant::now();
+        items
+            .iter()
+            .map(|it| {
                 let c = &batch[it.candidate];
+                if it.placement != 0 || self.answers.len() != c.dense.len() {
+                    // A later placement, tried because the first failed: the f64 search now
+                    // rather than another dispatch. (The first placement always has its answers.)
+                    if it.placement != 0 {
+                        self.gpu.add_later_placement(c.dense.len());
+                    }
+                    return pipeline::CpuPrimaries.solve(state, batch, std::slice::from_ref(it)).map(|mut r| r.remove(0));
+                }
+                let t = Instant::now();
                 let tris = &it.tris;
-                let mine = &answers[q..q + c.dense.len()];
                 let (solved, states) = state.solve_region_vertices(
                     c,
                     tris,
@@ -412,15 +448,17 @@ impl Primaries for GpuEvaluator {
                     |(scratch, normals, disagreements), i, x, pinched| {
                         state.dense.vertex_normals(c.dense[i], normals);
                         let (check4, strict) = (!pinched, state.strict && !pinched);
-                        settle(&mine[i], x, normals, tris, state.mode, state.dmax, check4, disagreements, || {
+                        settle(&self.answers[i], x, normals, tris, state.mode, state.dmax, check4, disagreements, || {
                             find_primary(x, normals, tris, state.mode, state.dmax, check4, strict, scratch)
                         })
                     },
                 );
-                (solved, states.iter().map(|s| s.2).sum(), t.elapsed().as_secs_f64())
+                let disagreements: u64 = states.iter().map(|s| s.2).sum();
+                if disagreements > 0 {
+                    self.gpu.add_stats(&[], disagreements, 0.0);
+                }
+                Ok((solved, t.elapsed().as_secs_f64()))
             })
-            .collect();
-        self.add_stats(&answers, results.iter().map(|r| r.1).sum(), kernel_s);
-        Ok(results.into_iter().map(|(r, _, s)| (r, s)).collect())
+            .collect()
     }
 }
