@@ -39,9 +39,8 @@ use std::time::Instant;
 pub struct Item {
     /// Index of the candidate in the round's batch.
     pub candidate: usize,
-    /// Which of its placements.
+    /// Which of its placements (its position: `Candidate::placements[placement]`).
     pub placement: usize,
-    pub position: DVec3,
     /// New directions of the kept vertex and its ring.
     pub new_dirs: Vec<(u32, DVec3)>,
     /// The region's faces are the first `n_region` of `tris`; the border's follow.
@@ -114,7 +113,6 @@ pub fn stage_neighbourhoods(state: &State, batch: &[Candidate], placement: usize
             let built = state.build_neighbourhood(c, position, &mut tris).map(|(new_dirs, n_region)| Item {
                 candidate: ci,
                 placement,
-                position,
                 new_dirs,
                 n_region,
                 tris,
@@ -176,7 +174,8 @@ pub fn stage_checks(state: &State, batch: &[Candidate], items: &mut [Item], reac
         .map(|((it, reached), first)| {
             let t = Instant::now();
             let new_dirs = std::mem::take(&mut it.new_dirs);
-            let r = state.check_placement(&batch[it.candidate], it.position, new_dirs, &it.tris, reached, first);
+            let c = &batch[it.candidate];
+            let r = state.check_placement(c, c.placements[it.placement], new_dirs, &it.tris, reached, first);
             (r, t.elapsed().as_secs_f64())
         })
         .collect()
