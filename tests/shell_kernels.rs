@@ -1,7 +1,8 @@
 //! The WGSL shell kernels: they parse and validate with wgpu's naga (no GPU needed), every
 //! #[repr(C)] struct matches its WGSL struct, the GPU's decisions agree with the f64 oracle
 //! outside the tolerance band on real batches (bunny, at several stages and in every mode), and
-//! the GPU backend gives the CPU backend's bytes end to end. GPU tests request Backends::VULKAN
+//! the GPU backend gives the CPU backend's bytes end to end (a 6k sample, the bunny and the
+//! horse). GPU tests request Backends::VULKAN
 //! and assert it; with DISPDEC_REQUIRE_GPU=1 (the README's test command) a missing adapter fails.
 
 mod common;
@@ -299,6 +300,43 @@ fn decimate_and_validate_with_backend_gpu_match_cpu() {
     let rep: Value = serde_json::from_slice(&std::fs::read(&j).unwrap()).unwrap();
     assert!(rep["backend"].as_str().unwrap().starts_with("gpu"), "{}", rep["backend"]);
     assert_eq!(rep["verdict"]["valid"], true);
+}
+
+/// Issue 11: on real scans the GPU path writes the CPU path's bytes — the bunny and the horse,
+/// default options, two threads, through the binary (lavapipe: about 45 s and 60 s for both
+/// paths of each; the 1M sample's GPU run takes longer than CI allows and is the bench's). The
+/// GPU run must have asked the kernel (its band counters) and met no disagreement.
+#[test]
+fn bunny_and_horse_gpu_write_the_cpu_bytes() {
+    let Some(_) = vulkan() else { return };
+    let dir = tempdir("real-gpu");
+    for name in ["bunny.ply.gz", "horse.ply.gz"] {
+        let Some(scan) = real_scan(name) else { continue };
+        let mut bytes = Vec::new();
+        for backend in ["cpu", "gpu"] {
+            let (b, m, r) = (dir.join(format!("{backend}.obj")), dir.join(format!("{backend}.map")), dir.join(format!("{backend}.json")));
+            let o = run(&[
+                "decimate", scan.to_str().unwrap(), "-o", b.to_str().unwrap(), "--map", m.to_str().unwrap(),
+                "--report", r.to_str().unwrap(), "--backend", backend, "--threads", "2", "-q",
+            ]);
+            assert_eq!(o.status.code(), Some(0), "{name} {backend}: {}", String::from_utf8_lossy(&o.stderr));
+            let rep: Value = serde_json::from_slice(&std::fs::read(&r).unwrap()).unwrap();
+            if backend == "gpu" {
+                let band = &rep["gpu_band"];
+                // One dispatch a round: the kernel answers the first placements, the f64 search
+                // the later ones. Measured: bunny 4,383,691 queries to 1,257,373 later-placement
+                // vertices (3.49), horse 5,013,155 to 1,002,099 (5.00); between 3 and 6 (−14 %,
+                // +20 %).
+                let (q, later) = (band["queries"].as_u64().unwrap(), band["later_placement_vertices"].as_u64().unwrap());
+                println!("{name}: {q} queries, {later} later-placement vertices");
+                assert!(q > 3 * later && q < 6 * later, "{name}: {q} queries, {later} later-placement vertices");
+                assert_eq!(band["disagreements"], 0, "{name}");
+            }
+            println!("{name} {backend}: {} faces, valid {}", rep["faces_out"], rep["global"]["valid"]);
+            bytes.push((std::fs::read(&b).unwrap(), std::fs::read(&m).unwrap()));
+        }
+        assert!(bytes[0] == bytes[1], "{name}: --backend gpu must write the same base and map as --backend cpu");
+    }
 }
 
 /// `--backend auto` always runs (GPU or CPU) and says which in one line.
