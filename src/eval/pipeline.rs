@@ -288,9 +288,8 @@ impl Round {
         Some(self.sift(state, wave, hinted).0)
     }
 
-    /// Primaries, reach and checks of a gathered wave of placement `placement`.
-    fn test(&mut self, state: &State, batch: &[Candidate], primaries: &dyn Primaries, wave: Wave, placement: usize) -> Result<(), GpuError> {
-        let mut wave = wave;
+    /// Primaries, reach and checks of a gathered wave.
+    fn test(&mut self, state: &State, batch: &[Candidate], primaries: &dyn Primaries, mut wave: Wave) -> Result<(), GpuError> {
         let solved = primaries.solve(state, batch, &wave.items)?;
         state.clock.add(Stage::Primaries, (solved.iter().map(|r| r.1).sum::<f64>() * 1e9) as u64);
         // A region vertex without a solution (or, strict, with two) goes into the memo.
@@ -304,7 +303,7 @@ impl Round {
             let t = &mut self.tallies[it.candidate];
             t.memo = memo;
             t.spent += s;
-            t.accepted = Some(Accepted { placement, ..acc });
+            t.accepted = Some(Accepted { placement: it.placement, ..acc });
         }
         Ok(())
     }
@@ -314,7 +313,7 @@ impl Round {
         let waves = batch.iter().map(|c| c.placements.len()).max().unwrap_or(0);
         for placement in from..waves {
             let Some(wave) = self.gather(state, batch, placement) else { break };
-            self.test(state, batch, primaries, wave, placement)?;
+            self.test(state, batch, primaries, wave)?;
         }
         Ok(())
     }
@@ -350,7 +349,7 @@ impl Round {
                 let mut alone = Round { tallies: vec![tally] };
                 let primaries = primaries(ci);
                 if !wave.items.is_empty() {
-                    alone.test(state, one, &primaries, wave, 0)?;
+                    alone.test(state, one, &primaries, wave)?;
                 }
                 alone.run(state, one, &primaries, 1)?;
                 Ok(alone.outcomes(state).remove(0))

@@ -431,12 +431,10 @@ impl Primaries for FirstPlacement<'_> {
             .iter()
             .map(|it| {
                 let c = &batch[it.candidate];
-                if it.placement != 0 || self.answers.len() != c.dense.len() {
+                if it.placement != 0 {
                     // A later placement, tried because the first failed: the f64 search now
-                    // rather than another dispatch. (The first placement always has its answers.)
-                    if it.placement != 0 {
-                        self.gpu.add_later_placement(c.dense.len());
-                    }
+                    // rather than another dispatch.
+                    self.gpu.add_later_placement(c.dense.len());
                     return pipeline::CpuPrimaries.solve(state, batch, std::slice::from_ref(it)).map(|mut r| r.remove(0));
                 }
                 let t = Instant::now();
