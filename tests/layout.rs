@@ -1,6 +1,7 @@
 //! The library's layout as DEVELOPERS.md draws it: the top-level modules form no cycle (the data
-//! flows one way), the validator knows nothing of the decimator or its evaluators, and `gpu/` is
-//! the only module that calls wgpu. Read from the sources: every `crate::name` a module's code
+//! flows one way), the validator knows nothing of the decimator or its evaluators, the
+//! evaluators read the decimator's round snapshot and never its state, and `gpu/` is the only
+//! module that calls wgpu. Read from the sources: every `crate::name` a module's code
 //! names (comments and `#[cfg(test)]` sections left out, since tests may reach across).
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -124,6 +125,38 @@ fn the_validator_knows_nothing_of_the_decimator() {
     for m in ["decimate", "eval", "app"] {
         assert!(!g["validate"].0.contains(m), "validate names crate::{m}: {:?}", g["validate"].0);
     }
+}
+
+/// Whether `code` names `word` as a whole identifier.
+fn names_word(code: &str, word: &str) -> bool {
+    let ident = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    code.match_indices(word).any(|(i, _)| {
+        !code[..i].chars().last().is_some_and(ident) && !code[i + word.len()..].chars().next().is_some_and(ident)
+    })
+}
+
+/// SPEC §3: the evaluator takes the round, not the decimator. The evaluators (`eval/`, `gpu/`)
+/// and the stages' own file (`decimate/local.rs`) name `Snapshot` (what a round's tests read:
+/// the base, the dense mesh, the association, the settings) and never `State` (which adds the
+/// queue, the fail memo and the counters), and the interface the rounds call takes a snapshot.
+#[test]
+fn the_evaluators_read_the_snapshot_not_the_state() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    for p in ["eval", "gpu", "decimate/local.rs"] {
+        rust_files(&src.join(p), &mut files);
+    }
+    assert!(files.len() >= 5, "{files:?}");
+    let mut snapshot = 0;
+    for f in &files {
+        let code = code_of(&std::fs::read_to_string(f).unwrap());
+        assert!(!names_word(&code, "State"), "{} names the decimator's State", f.display());
+        snapshot += usize::from(names_word(&code, "Snapshot"));
+    }
+    assert!(snapshot >= 3, "the evaluators name no Snapshot (the test reads nothing?)");
+    let outcome = code_of(&std::fs::read_to_string(src.join("decimate/outcome.rs")).unwrap());
+    assert!(outcome.contains("fn evaluate(&self, snap: &Snapshot, batch: &[Candidate])"), "Evaluator::evaluate's signature changed");
+    assert!(names_word("a State b", "State") && !names_word("StateX Snapshots", "State"));
 }
 
 #[test]

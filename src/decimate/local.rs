@@ -1,18 +1,18 @@
 //! The local test of a candidate collapse (SPEC §2 step 5), item by item: what each stage of
 //! [`crate::eval::pipeline`] does for one (candidate, placement) — the collapsed
-//! neighbourhood (`State::build_neighbourhood`), the hinted checks
-//! (`State::unmapped_at_hint`, `State::torn_at_hint`), the region's primary solutions
-//! (`State::solve_region_vertices`), the reach (`State::reach_placement`) and the flip and
-//! tear checks (`State::check_placement`).
+//! neighbourhood (`Snapshot::build_neighbourhood`), the hinted checks
+//! (`Snapshot::unmapped_at_hint`, `Snapshot::torn_at_hint`), the region's primary solutions
+//! (`Snapshot::solve_region_vertices`), the reach (`Snapshot::reach_placement`) and the flip and
+//! tear checks (`Snapshot::check_placement`).
 //!
 //! Which dense vertices are tested:
 //! - those associated with the *region* (faces around u, w and their ring, whose direction
 //!   field changes), solved over region ∪ border, and against faces outside when those could
-//!   hold a smaller |d| ([`State::far_primaries`]);
+//!   hold a smaller |d| ([`Snapshot::far_primaries`]);
 //! - any other vertex whose distance to a changed triangle is below its |d|: only those can
-//!   gain a solution there ([`State::moved_primaries`]).
+//!   gain a solution there ([`Snapshot::moved_primaries`]).
 
-use crate::decimate::{Candidate, NearRule, State};
+use crate::decimate::{Candidate, NearRule, Snapshot};
 use crate::guarantee::chunks::{chunk_count, flat_map_chunks, run_to_first_failure};
 use crate::guarantee::ids::{merge_sorted, sorted_unique, IdIndex};
 use super::outcome::Accepted;
@@ -23,7 +23,7 @@ use std::time::Instant;
 use crate::topology::{face_of, INVALID};
 use glam::DVec3;
 
-impl State {
+impl Snapshot {
     /// Builds the neighbourhood of a candidate after collapse with `placement`: region (less
     /// the deleted faces) and border, with the new directions. Fails on a fold-over.
     pub(crate) fn build_neighbourhood(&self, c: &Candidate, p: DVec3, tris: &mut Tris) -> Result<(Vec<(u32, DVec3)>, usize), Reject> {
@@ -109,12 +109,12 @@ impl State {
     /// region vertex and searched the faces beyond (about half of such a placement's time). The
     /// element's vertices are solved as the region's solve and the reach stage solve them — a
     /// region vertex over the neighbourhood, then over the faces outside within its |d|
-    /// ([`State::far_primaries`]' rule, vertex by vertex); a vertex outside onto the region
-    /// where [`State::moved_primaries`] would test it — so their maps are the whole test's,
+    /// ([`Snapshot::far_primaries`]' rule, vertex by vertex); a vertex outside onto the region
+    /// where [`Snapshot::moved_primaries`] would test it — so their maps are the whole test's,
     /// and only elements the whole test checks are taken: a triangle of `c.dense_faces`, an
     /// edge of one it judges. The whole test would then fail too (which check fails first
     /// changes no verdict), so the placement fails here, without solving the rest; the element
-    /// goes first in `first` again. Not strict (as [`State::unmapped_at_hint`]).
+    /// goes first in `first` again. Not strict (as [`Snapshot::unmapped_at_hint`]).
     pub(crate) fn torn_at_hint(&self, c: &Candidate, tris: &Tris, n_region: usize, first: &mut Vec<FailAt>, scratch: &mut Scratch) -> Option<Reject> {
         let (reason, at) = self.torn_hint(c, tris, n_region, first, scratch)?;
         self.clock.torn_at_hint();
@@ -122,7 +122,7 @@ impl State {
         Some(reason)
     }
 
-    /// [`State::torn_at_hint`]'s check without its bookkeeping: the first element of `hints`
+    /// [`Snapshot::torn_at_hint`]'s check without its bookkeeping: the first element of `hints`
     /// that fails alone, and why.
     fn torn_hint(&self, c: &Candidate, tris: &Tris, n_region: usize, hints: &[FailAt], scratch: &mut Scratch) -> Option<(Reject, FailAt)> {
         if !self.fail_hints || self.strict {
@@ -164,8 +164,8 @@ impl State {
 
     /// Non-pinched dense vertex v's map in the placement's test, found alone: a region vertex's
     /// primary over the neighbourhood `tris`, or a better one on the faces outside within its |d|
-    /// ([`State::far_primaries`]); a vertex outside, its association or, where
-    /// [`State::moved_primaries`] tests it, a better solution on the region. `None`: a region
+    /// ([`Snapshot::far_primaries`]); a vertex outside, its association or, where
+    /// [`Snapshot::moved_primaries`] tests it, a better solution on the region. `None`: a region
     /// vertex with no solution.
     fn map_alone(&self, c: &Candidate, tris: &Tris, n_region: usize, v: u32, scratch: &mut Scratch) -> Option<Map> {
         let x = self.dense.pos[v as usize];
@@ -187,15 +187,15 @@ impl State {
             return Some(cur);
         }
         let spheres = (self.near == NearRule::Triangles).then(|| RegionSpheres::new(&tris.pos[..n_region], &tris.sphere[..n_region]));
-        if self.region_distance(v, x, cur.d.abs(), State::region_box(tris, n_region), spheres.as_ref()) >= cur.d.abs() {
+        if self.region_distance(v, x, cur.d.abs(), Snapshot::region_box(tris, n_region), spheres.as_ref()) >= cur.d.abs() {
             return Some(cur);
         }
         Some(self.moved_onto(v, &normals, &region_tris(tris, n_region), scratch).unwrap_or(cur))
     }
 
-    /// Notes where the region's solve failed (`State::solve_region_vertices`'s error: an
+    /// Notes where the region's solve failed (`Snapshot::solve_region_vertices`'s error: an
     /// unmapped vertex goes into the fail memo, except in strict mode, which never reads it
-    /// back — see `State::unmapped_at_hint`) and returns the reason.
+    /// back — see `Snapshot::unmapped_at_hint`) and returns the reason.
     pub(crate) fn note_solve_failure(&self, first: &mut Vec<FailAt>, (reason, v): (Reject, u32)) -> Reject {
         if self.fail_hints && !self.strict && reason == Reject::Unmapped {
             note_failure(first, FailAt::Vertex(v));
@@ -267,7 +267,7 @@ impl State {
     /// The reach stage of a placement whose region's vertices are solved: faces outside that
     /// may hold a smaller |d| (the better maps replace `maps`' entries), vertices whose primary
     /// moves onto the region, and (strict) second solutions of the ring's vertices on the
-    /// region. What it found, for the checks (`State::check_placement`).
+    /// region. What it found, for the checks (`Snapshot::check_placement`).
     pub(crate) fn reach_placement(&self, c: &Candidate, tris: &Tris, n_region: usize, mut maps: Vec<Map>, scratch: &mut Scratch) -> Result<Reached, Reject> {
         let t = Instant::now();
         let mut read_faces = Vec::new();
@@ -363,7 +363,7 @@ impl State {
             }
         }
         // Widened by how far the round's other commits can move a face: a point records as
-        // read the faces within its reach plus that ([`State::round_move`]).
+        // read the faces within its reach plus that ([`Snapshot::round_move`]).
         let reach = (OUTER_REACH * dmax_seen).min(self.dmax) + self.round_move;
         let (lo, hi) = (lo - DVec3::splat(reach), hi + DVec3::splat(reach));
         let ids = self.faces_outside(c, tris, lo, hi);
@@ -409,7 +409,7 @@ impl State {
         t
     }
 
-    /// Appends live face `f` as it is now, with its bounds `b` ([`State::bounds_of`]).
+    /// Appends live face `f` as it is now, with its bounds `b` ([`Snapshot::bounds_of`]).
     fn push_face(&self, t: &mut Tris, f: u32, b: &crate::guarantee::TriBounds) {
         let info = self.face_info_current(f);
         t.push_with(f, info.verts, info.pos, info.dir, b);
@@ -525,7 +525,7 @@ impl State {
     }
 
     /// How far vertex v (at x, |d| = `dv`) outside the region lies from it, as
-    /// [`State::moved_primaries`] measures it: from the region's box [lo, hi], and, with the
+    /// [`Snapshot::moved_primaries`] measures it: from the region's box [lo, hi], and, with the
     /// triangle near rule, from its triangles (`spheres`) where the box is nearer than `dv` +
     /// the vertex's edge reach.
     fn region_distance(&self, v: u32, x: DVec3, dv: f64, (lo, hi): (DVec3, DVec3), spheres: Option<&RegionSpheres>) -> f64 {
@@ -561,7 +561,7 @@ impl State {
         if self.max_abs_d <= 0.0 || n_region == 0 {
             return (Vec::new(), Vec::new());
         }
-        let (lo, hi) = State::region_box(tris, n_region);
+        let (lo, hi) = Snapshot::region_box(tris, n_region);
         let mut cand = Vec::new();
         let mut near = Vec::new();
         let spheres = (self.near == NearRule::Triangles).then(|| RegionSpheres::new(&tris.pos[..n_region], &tris.sphere[..n_region]));
@@ -632,7 +632,7 @@ impl State {
 
 }
 
-/// What a placement's reach stage found (`State::reach_placement`), for its checks.
+/// What a placement's reach stage found (`Snapshot::reach_placement`), for its checks.
 pub struct Reached {
     /// The region's maps (`Candidate::dense` order), better ones on faces outside put in.
     pub maps: Vec<Map>,
@@ -677,11 +677,11 @@ fn note_failure(first: &mut Vec<FailAt>, at: FailAt) {
     first.truncate(FAIL_HINTS);
 }
 
-/// Fewest region vertices in one parallel chunk of `State::solve_region_vertices`.
+/// Fewest region vertices in one parallel chunk of `Snapshot::solve_region_vertices`.
 /// Why: a primary search costs a few µs; 64 of them dwarf a chunk's scratch and its join.
 const PRIMARY_CHUNK_MIN: usize = 64;
 
-/// Most chunks per thread of `State::solve_region_vertices`.
+/// Most chunks per thread of `Snapshot::solve_region_vertices`.
 /// Why: as the check's: a round's last candidate can use the idle threads.
 const PRIMARY_CHUNKS_PER_THREAD: usize = 4;
 
@@ -753,7 +753,7 @@ impl Outer {
         self.index.get(&self.ids, f).is_some()
     }
     /// The triangles a point with reach `reach` searches (see the type).
-    fn tris_for(&self, st: &State, x: DVec3, reach: f64) -> &Tris {
+    fn tris_for(&self, st: &Snapshot, x: DVec3, reach: f64) -> &Tris {
         if self.covers(x, reach) {
             return &self.within;
         }
@@ -805,7 +805,7 @@ fn sphere_meets_box((ctr, r): (DVec3, f64), lo: DVec3, hi: DVec3, margin: f64) -
 /// Map context during a candidate's evaluation: tested vertices use the new maps and the
 /// collapsed neighbourhood; everything else the committed state.
 struct CandidateContext<'a> {
-    st: &'a State,
+    st: &'a Snapshot,
     c: &'a Candidate,
     tris: &'a Tris,
     /// The dense faces checked.
@@ -819,7 +819,7 @@ enum CheckMaps<'a> {
     /// The region's solve: a map per vertex of `c.dense` (found by `index`), and the vertices
     /// outside whose primary moves onto the region (`extras`, ascending).
     Region { index: IdIndex, maps: &'a [Map], extras: &'a [(u32, Map)] },
-    /// The vertices of one element checked alone (`State::torn_at_hint`), ascending: the
+    /// The vertices of one element checked alone (`Snapshot::torn_at_hint`), ascending: the
     /// check reads no other.
     Few(&'a [(u32, Map)]),
 }
@@ -862,7 +862,7 @@ impl CandidateContext<'_> {
 
 impl CheckMaps<'_> {
     /// Vertex `v`'s map as the check sees it (a pinched vertex's too).
-    fn get(&self, st: &State, c: &Candidate, v: u32) -> Map {
+    fn get(&self, st: &Snapshot, c: &Candidate, v: u32) -> Map {
         let by_vertex = |list: &[(u32, Map)]| list.binary_search_by_key(&v, |e| e.0).ok().map(|i| list[i].1);
         match self {
             CheckMaps::Region { index, maps, extras } => match index.get(&c.dense, v) {
@@ -1230,14 +1230,14 @@ mod tests {
         assert!(below > 3800 && between > 4900 && beyond > 9200, "{below} {between} {beyond}");
     }
 
-    /// The hint stage's promise (`State::torn_at_hint`): a placement found torn or flipped at
+    /// The hint stage's promise (`Snapshot::torn_at_hint`): a placement found torn or flipped at
     /// an element of its fail memo, alone, fails its whole test too, whatever the memo —
     /// checked for every placement of every candidate of a decimation of the scan-like sample
     /// (bumps, a fin, an overhang) whose memo holds a torn or flipped element, against the
     /// placement's full test with no memo at all.
     #[test]
     fn a_placement_torn_at_a_hint_fails_its_whole_test() {
-        use crate::decimate::{Evaluator, Options};
+        use crate::decimate::{Evaluator, Options, State};
         use crate::eval::pipeline::{evaluate_round, CpuPrimaries};
         use crate::eval::CpuEvaluator;
         use std::sync::atomic::{AtomicUsize, Ordering};
@@ -1249,7 +1249,7 @@ mod tests {
             fn name(&self) -> String {
                 "hints".into()
             }
-            fn evaluate(&self, state: &State, batch: &[Candidate]) -> Result<Vec<crate::decimate::Outcome>, crate::error::GpuError> {
+            fn evaluate(&self, state: &Snapshot, batch: &[Candidate]) -> Result<Vec<crate::decimate::Outcome>, crate::error::GpuError> {
                 for c in batch.iter().filter(|c| c.first_fail.iter().any(|h| !matches!(h, FailAt::Vertex(_)))) {
                     self.asked.fetch_add(1, Ordering::Relaxed);
                     for (pi, &p) in c.placements.iter().enumerate() {

@@ -139,8 +139,37 @@ pub struct Stats {
     pub stages: crate::decimate::stages::StageSummary,
 }
 
-/// The whole decimation state: dense mesh (immutable), base mesh, association, queue.
+/// The decimation state: what a round's candidate tests read ([`Snapshot`], reached through
+/// `Deref`), and what only the rounds' pick and commit keep — the queue, the fail memo, the
+/// counters. The evaluators take the snapshot, never the state.
 pub struct State {
+    pub snap: Snapshot,
+    // Queue.
+    heap: BinaryHeap<QueueEntry>,
+    queued: FxHashSet<u64>,
+    /// Where the last try of a rejected edge failed, by edge key (see `Candidate::first_fail`).
+    fail_memo: FxHashMap<u64, Vec<FailAt>>,
+    pub stats: Stats,
+}
+
+impl std::ops::Deref for State {
+    type Target = Snapshot;
+    fn deref(&self) -> &Snapshot {
+        &self.snap
+    }
+}
+
+impl std::ops::DerefMut for State {
+    fn deref_mut(&mut self) -> &mut Snapshot {
+        &mut self.snap
+    }
+}
+
+/// What the candidate test reads, and only that (SPEC §3: the evaluator takes the round, not
+/// the decimator): the dense mesh, the base mesh (positions, directions, topology, kept bounds,
+/// face grid), the association, the settings, and the stage clock it reports to. Unchanged
+/// while a round is evaluated; pick and commit change it between rounds.
+pub struct Snapshot {
     pub mode: NormalMode,
     pub dmax: f64,
     pub strict: bool,
@@ -153,7 +182,7 @@ pub struct State {
     pub dir: Vec<DVec3>,
     pub topo: Topology,
     /// What the primary search derives from a live base face's corners and directions
-    /// ([`State::bounds_of`]), kept for the faces of `bounds_slot` during the later part of
+    /// ([`Snapshot::bounds_of`]), kept for the faces of `bounds_slot` during the later part of
     /// [`State::run`] ([`KEEP_BOUNDS_FROM`]) and current through every commit, so that the sets
     /// a candidate's test prepares copy them instead of deriving them again (a face lies in many
     /// candidates' sets). 200 bytes a kept face; the faces collapsed are shed when half are.
@@ -184,12 +213,6 @@ pub struct State {
     /// itself): none with interpolated normals (the direction rule), some in constant mode,
     /// where a vertex sees only its faces' own normals.
     pub unmapped_at_start: usize,
-    // Queue.
-    heap: BinaryHeap<QueueEntry>,
-    queued: FxHashSet<u64>,
-    /// Where the last try of a rejected edge failed, by edge key (see `Candidate::first_fail`).
-    fail_memo: FxHashMap<u64, Vec<FailAt>>,
-    pub stats: Stats,
     /// CPU time of the candidate test per stage (report only; never read by a decision).
     pub clock: crate::decimate::stages::StageClock,
     /// Test first where a collapse's earlier placement or try failed (on by default; off, the
@@ -236,7 +259,7 @@ impl State {
         });
         let topo = dense.topology.clone();
         let nf = dense.faces.len();
-        let mut st = State {
+        let snap = Snapshot {
             mode: opts.normals,
             dmax,
             strict: opts.strict,
@@ -269,13 +292,10 @@ impl State {
             },
             edge_reach_max: 0.0,
             unmapped_at_start: 0,
-            heap: BinaryHeap::new(),
-            queued: FxHashSet::default(),
-            fail_memo: FxHashMap::default(),
-            stats: Stats::default(),
             clock: Default::default(),
             fail_hints: true,
         };
+        let mut st = State { snap, heap: BinaryHeap::new(), queued: FxHashSet::default(), fail_memo: FxHashMap::default(), stats: Stats::default() };
         st.edge_reach_max = st.edge_reach.iter().copied().fold(0.0, f64::max);
         st.dir = (0..nv as u32).into_par_iter().map(|v| st.compute_dir(v)).collect();
         // Interpolated directions see every vertex of the scan (the direction rule); in
@@ -292,7 +312,8 @@ impl State {
             bary[k] = 1.0;
             st.assoc.push(Map { face: f, bary, d: 0.0 });
             st.face_dense.push(f, v);
-            st.grid.raise_reach(st.dense.pos[v as usize], st.edge_reach[v as usize]);
+            let snap = &mut st.snap;
+            snap.grid.raise_reach(snap.dense.pos[v as usize], snap.edge_reach[v as usize]);
         }
         for h in 0..st.topo.corner.len() as u32 {
             let (a, b) = (st.topo.from(h), st.topo.to(h));
@@ -585,7 +606,8 @@ impl State {
                 self.face_dense.push(m.face, v);
                 self.max_abs_d = self.max_abs_d.max(m.d.abs());
                 // Moved vertices (`extras`, below) only come nearer: their bound holds.
-                self.grid.raise_reach(self.dense.pos[v as usize], m.d.abs() + self.edge_reach[v as usize]);
+                let snap = &mut self.snap;
+                snap.grid.raise_reach(snap.dense.pos[v as usize], m.d.abs() + snap.edge_reach[v as usize]);
                 vmark[v as usize] = round;
             }
             for &(v, m) in &acc.extras {
@@ -616,7 +638,8 @@ impl State {
         let this = &*self;
         let fresh: Vec<TriBounds> = reshaped.par_iter().map(|&f| this.face_bounds(f)).collect();
         for (&f, b) in reshaped.iter().zip(fresh) {
-            self.bounds[self.bounds_slot[f as usize] as usize] = b; // live since kept
+            let slot = self.bounds_slot[f as usize] as usize;
+            self.bounds[slot] = b; // live since kept
         }
     }
 
@@ -640,7 +663,7 @@ impl State {
                 continue;
             }
             self.round_move = round_move(&self.pos, &batch);
-            let outcomes = evaluator.evaluate(self, &batch)?;
+            let outcomes = evaluator.evaluate(&self.snap, &batch)?;
             let t2 = Instant::now();
             self.stats.time_slowest_candidates_s += self.clock.take_round_slowest();
             // With a target, never commit past it: the rest of the batch stays untried.
@@ -742,7 +765,9 @@ impl State {
         }
         BaseMesh { positions, directions, faces, face_map }
     }
+}
 
+impl Snapshot {
     /// Triangles of the 2-ring around face `f` (faces sharing a vertex with f, and theirs).
     pub fn two_ring_tris(&self, f: u32, tris: &mut Tris) {
         let (mut s, mut tmp) = (Vec::new(), Vec::new());
@@ -779,18 +804,18 @@ impl State {
     }
 
     /// What the primary search derives from live face `f` as it stands: `TriBounds::new` of its
-    /// `face_info_current`, the copy in [`State::bounds`] where it is kept.
+    /// `face_info_current`, the copy in [`Snapshot::bounds`] where it is kept.
     pub(crate) fn bounds_of(&self, f: u32) -> TriBounds {
         self.kept_bounds(f).unwrap_or_else(|| self.face_bounds(f))
     }
 
-    /// [`State::bounds_of`] for face `f` as it is now (`fi`, [`State::face_info_current`]):
+    /// [`Snapshot::bounds_of`] for face `f` as it is now (`fi`, [`Snapshot::face_info_current`]):
     /// derived from `fi` where not kept.
     pub(crate) fn bounds_with(&self, f: u32, fi: &FaceInfo) -> TriBounds {
         self.kept_bounds(f).unwrap_or_else(|| TriBounds::new(&fi.pos, &fi.dir))
     }
 
-    /// Face `f`'s bounds where [`State::bounds`] keeps them.
+    /// Face `f`'s bounds where [`Snapshot::bounds`] keeps them.
     pub(crate) fn kept_bounds(&self, f: u32) -> Option<TriBounds> {
         match self.bounds_slot.get(f as usize) {
             Some(&k) if k != INVALID => Some(self.bounds[k as usize]),
@@ -803,7 +828,7 @@ impl State {
         TriBounds::new(&fi.pos, &fi.dir)
     }
 
-    /// Fills [`State::bounds`] for every live face, afresh (a commit keeps it current from then
+    /// Fills [`Snapshot::bounds`] for every live face, afresh (a commit keeps it current from then
     /// on; called again, it sheds the faces collapsed since).
     pub(crate) fn keep_bounds(&mut self) {
         self.drop_bounds(); // first: the old and the new at once would set the run's peak
@@ -818,7 +843,7 @@ impl State {
         self.bounds_slot = slot;
     }
 
-    /// Drops [`State::bounds`].
+    /// Drops [`Snapshot::bounds`].
     fn drop_bounds(&mut self) {
         self.bounds = Vec::new();
         self.bounds_slot = Vec::new();
@@ -831,7 +856,7 @@ impl State {
 
 }
 
-/// [`State::bounds`] are kept once the base has at most 1/KEEP_BOUNDS_FROM of the input's
+/// [`Snapshot::bounds`] are kept once the base has at most 1/KEEP_BOUNDS_FROM of the input's
 /// faces. Why: kept for every face of the input they would add 200 bytes an input face to the
 /// run's peak memory (the horse 42 → 58 MB); from a quarter on, at most 50 (45 MB). Measured
 /// side by side against keeping them from the start: the horse 0.96× against 0.95×, the
@@ -848,7 +873,7 @@ pub struct BaseMesh {
     pub face_map: Vec<u32>,
 }
 
-/// [`State::round_move`] for a batch: its longest candidate edge, 0 for a batch of one.
+/// [`Snapshot::round_move`] for a batch: its longest candidate edge, 0 for a batch of one.
 fn round_move(pos: &[DVec3], batch: &[Candidate]) -> f64 {
     if batch.len() < 2 {
         return 0.0;
@@ -909,7 +934,7 @@ mod tests {
         assert_eq!((failed_b.2, failed_b.3), (0, 0));
         assert!(failed_a.2 * 100 >= failed_a.1 * 90, "nearly all unmapped placements fail at the hinted vertex ({failed_a:?})");
         // Torn or flipped elements checked first, alone, before the region's solve where a try
-        // found one (`State::torn_at_hint`): most torn placements fail there (measured: 934 of
+        // found one (`Snapshot::torn_at_hint`): most torn placements fail there (measured: 934 of
         // 1,143, 81.7 %; 75 % asked), so far fewer elements reach the whole check (338,534
         // against 550,594, 61 %; at most 70 % asked). A placement that fails there may have
         // failed as unmapped in the whole test (10 here: 1,133 + 9,268 against 1,143 + 9,258),

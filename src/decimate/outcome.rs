@@ -2,7 +2,7 @@
 //! rounds call: owned by the decimator, implemented by [`crate::eval::CpuEvaluator`] and the
 //! GPU evaluator, so that the decimator depends on no evaluator.
 
-use super::{Candidate, State};
+use super::{Candidate, Snapshot};
 use crate::error::GpuError;
 use crate::guarantee::{FailAt, Map, Reject};
 use glam::DVec3;
@@ -46,7 +46,8 @@ pub type Outcome = Result<Accepted, Rejected>;
 pub trait Evaluator: Sync {
     /// The backend and adapter, for reports.
     fn name(&self) -> String;
-    /// Evaluates every candidate of a batch; outcomes in batch order. Fails only when the
-    /// device fails (never for a candidate).
-    fn evaluate(&self, state: &State, batch: &[Candidate]) -> Result<Vec<Outcome>, GpuError>;
+    /// Evaluates every candidate of a batch against the round's snapshot of the state (the
+    /// queue, fail memo and counters out of its reach); outcomes in batch order. Fails only
+    /// when the device fails (never for a candidate).
+    fn evaluate(&self, snap: &Snapshot, batch: &[Candidate]) -> Result<Vec<Outcome>, GpuError>;
 }

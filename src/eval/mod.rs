@@ -6,7 +6,7 @@
 
 pub use crate::decimate::outcome::{Accepted, Evaluator, Outcome, Rejected};
 pub use crate::guarantee::*;
-use crate::decimate::{Candidate, State};
+use crate::decimate::{Candidate, Snapshot};
 pub mod pipeline;
 use rayon::prelude::*;
 
@@ -19,10 +19,10 @@ impl Evaluator for CpuEvaluator {
     fn name(&self) -> String {
         format!("cpu ({} threads)", rayon::current_num_threads())
     }
-    fn evaluate(&self, state: &State, batch: &[Candidate]) -> Result<Vec<Outcome>, crate::error::GpuError> {
+    fn evaluate(&self, snap: &Snapshot, batch: &[Candidate]) -> Result<Vec<Outcome>, crate::error::GpuError> {
         // Each candidate's waves on their own (a round of one): a candidate whose placement
         // fails goes on to its next at once, not after the round's slowest first placement.
-        let rounds: Result<Vec<Vec<Outcome>>, _> = batch.par_iter().map(|c| pipeline::evaluate_round(state, std::slice::from_ref(c), &pipeline::CpuPrimaries)).collect();
+        let rounds: Result<Vec<Vec<Outcome>>, _> = batch.par_iter().map(|c| pipeline::evaluate_round(snap, std::slice::from_ref(c), &pipeline::CpuPrimaries)).collect();
         Ok(rounds?.into_iter().flatten().collect())
     }
 }

@@ -13,6 +13,10 @@
 //!   checks     continuity and orientation: one verdict per placement      stage_checks
 //! ```
 //!
+//! Every stage reads the round's [`Snapshot`] — the base, the dense mesh, the association,
+//! the grids and the settings, unchanged while the round is evaluated — and its items; never
+//! the decimator's queue, fail memo or counters (`tests/layout.rs`).
+//!
 //! The CPU evaluator runs each candidate's waves as a round of its own (its stages split over
 //! the threads inside: a candidate whose placement fails goes on to the next at once). The GPU
 //! evaluator gathers and hints the round's first wave together, solves its regions in one
@@ -27,7 +31,7 @@
 use crate::decimate::outcome::{Accepted, Outcome, Rejected};
 use crate::decimate::stages::Stage;
 use crate::decimate::local::Reached;
-use crate::decimate::{Candidate, State};
+use crate::decimate::{Candidate, Snapshot};
 use crate::error::GpuError;
 use crate::guarantee::{find_primary, find_primary_hinted, FailAt, Found, Map, Reject, Scratch, Tris};
 use glam::DVec3;
@@ -60,7 +64,7 @@ pub type Solved = Result<Vec<Map>, (Reject, u32)>;
 pub trait Primaries: Sync {
     /// The solutions of `items` (all of them: the wave's survivors of the hint stage), in
     /// order, each with the CPU seconds spent on it alone (a shared dispatch not counted).
-    fn solve(&self, state: &State, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64)>, GpuError>;
+    fn solve(&self, snap: &Snapshot, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64)>, GpuError>;
 }
 
 /// The f64 primaries stage: [`find_primary`] over each item's neighbourhood, each region's
@@ -68,26 +72,26 @@ pub trait Primaries: Sync {
 pub struct CpuPrimaries;
 
 impl Primaries for CpuPrimaries {
-    fn solve(&self, state: &State, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64)>, GpuError> {
+    fn solve(&self, snap: &Snapshot, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64)>, GpuError> {
         Ok(items
             .par_iter()
             .map(|it| {
                 let t = Instant::now();
                 let c = &batch[it.candidate];
                 let tris = &it.tris;
-                let (solved, _) = state.solve_region_vertices(
+                let (solved, _) = snap.solve_region_vertices(
                     c,
                     tris,
                     || (Scratch::default(), Vec::new(), usize::MAX),
                     |(scratch, normals, last), i, x, pinched| {
-                        state.dense.vertex_normals(c.dense[i], normals);
-                        if state.strict && !pinched {
-                            return find_primary(x, normals, tris, state.mode, state.dmax, true, true, scratch);
+                        snap.dense.vertex_normals(c.dense[i], normals);
+                        if snap.strict && !pinched {
+                            return find_primary(x, normals, tris, snap.mode, snap.dmax, true, true, scratch);
                         }
                         // The previous vertex's triangle first (`c.order` keeps neighbours
                         // together): a first hit there leaves only the triangles within its
                         // |d| to bound.
-                        let found = find_primary_hinted(x, normals, tris, state.mode, state.dmax, !pinched, false, &[*last], scratch);
+                        let found = find_primary_hinted(x, normals, tris, snap.mode, snap.dmax, !pinched, false, &[*last], scratch);
                         if let Found::Hit(t, _) = found {
                             *last = t;
                         }
@@ -102,7 +106,7 @@ impl Primaries for CpuPrimaries {
 
 /// Gather: the collapsed neighbourhood of placement `placement` of each candidate `cands`
 /// (fails on a fold-over), with the seconds each took.
-pub fn stage_neighbourhoods(state: &State, batch: &[Candidate], placement: usize, cands: &[usize]) -> Vec<(Result<Item, Reject>, f64)> {
+pub fn stage_neighbourhoods(snap: &Snapshot, batch: &[Candidate], placement: usize, cands: &[usize]) -> Vec<(Result<Item, Reject>, f64)> {
     cands
         .par_iter()
         .map(|&ci| {
@@ -110,7 +114,7 @@ pub fn stage_neighbourhoods(state: &State, batch: &[Candidate], placement: usize
             let c = &batch[ci];
             let position = c.placements[placement];
             let mut tris = Tris::default();
-            let built = state.build_neighbourhood(c, position, &mut tris).map(|(new_dirs, n_region)| Item {
+            let built = snap.build_neighbourhood(c, position, &mut tris).map(|(new_dirs, n_region)| Item {
                 candidate: ci,
                 placement,
                 new_dirs,
@@ -119,7 +123,7 @@ pub fn stage_neighbourhoods(state: &State, batch: &[Candidate], placement: usize
                 scratch: Scratch::default(),
             });
             let s = t.elapsed().as_secs_f64();
-            state.clock.add(Stage::Neighbourhood, (s * 1e9) as u64);
+            snap.clock.add(Stage::Neighbourhood, (s * 1e9) as u64);
             (built, s)
         })
         .collect()
@@ -127,23 +131,23 @@ pub fn stage_neighbourhoods(state: &State, batch: &[Candidate], placement: usize
 
 /// Hints: each item's candidate's fail memo checked first — a region vertex an earlier try
 /// found unmapped, then a dense triangle or edge it found torn or flipped — alone; an item
-/// that fails there fails its whole test (`State::unmapped_at_hint`, `State::torn_at_hint`).
+/// that fails there fails its whole test (`Snapshot::unmapped_at_hint`, `Snapshot::torn_at_hint`).
 /// `memos[i]` is item i's candidate's memo.
-pub fn stage_hints(state: &State, batch: &[Candidate], items: &mut [Item], memos: &mut [Vec<FailAt>]) -> Vec<(Result<(), Reject>, f64)> {
+pub fn stage_hints(snap: &Snapshot, batch: &[Candidate], items: &mut [Item], memos: &mut [Vec<FailAt>]) -> Vec<(Result<(), Reject>, f64)> {
     items
         .par_iter_mut()
         .zip(memos.par_iter_mut())
         .map(|(it, first)| {
             let t = Instant::now();
             let c = &batch[it.candidate];
-            let unmapped = state.unmapped_at_hint(c, &it.tris, first, &mut it.scratch);
-            let t1 = state.clock.lap(Stage::Primaries, t);
+            let unmapped = snap.unmapped_at_hint(c, &it.tris, first, &mut it.scratch);
+            let t1 = snap.clock.lap(Stage::Primaries, t);
             if unmapped {
                 return (Err(Reject::Unmapped), t.elapsed().as_secs_f64());
             }
             // (Its few solves counted as continuity: it is that stage's hinted check, run early.)
-            let torn = state.torn_at_hint(c, &it.tris, it.n_region, first, &mut it.scratch);
-            state.clock.lap(Stage::Continuity, t1);
+            let torn = snap.torn_at_hint(c, &it.tris, it.n_region, first, &mut it.scratch);
+            snap.clock.lap(Stage::Continuity, t1);
             (torn.map_or(Ok(()), Err), t.elapsed().as_secs_f64())
         })
         .collect()
@@ -151,22 +155,22 @@ pub fn stage_hints(state: &State, batch: &[Candidate], items: &mut [Item], memos
 
 /// Reach: for each item, the faces beyond its neighbourhood that may hold a smaller |d|, the
 /// vertices whose primary moves onto the region and (strict) the ring's second solutions
-/// (`State::reach_placement`), from the region's maps the primaries stage found.
-pub fn stage_reach(state: &State, batch: &[Candidate], items: &mut [Item], maps: Vec<Vec<Map>>) -> Vec<(Result<Reached, Reject>, f64)> {
+/// (`Snapshot::reach_placement`), from the region's maps the primaries stage found.
+pub fn stage_reach(snap: &Snapshot, batch: &[Candidate], items: &mut [Item], maps: Vec<Vec<Map>>) -> Vec<(Result<Reached, Reject>, f64)> {
     items
         .par_iter_mut()
         .zip(maps.into_par_iter())
         .map(|(it, maps)| {
             let t = Instant::now();
-            let r = state.reach_placement(&batch[it.candidate], &it.tris, it.n_region, maps, &mut it.scratch);
+            let r = snap.reach_placement(&batch[it.candidate], &it.tris, it.n_region, maps, &mut it.scratch);
             (r, t.elapsed().as_secs_f64())
         })
         .collect()
 }
 
 /// Checks: the exact continuity and orientation checks of each item that reached
-/// (`State::check_placement`): its verdict, with everything commit needs.
-pub fn stage_checks(state: &State, batch: &[Candidate], items: &mut [Item], reached: Vec<Reached>, memos: &mut [Vec<FailAt>]) -> Vec<(Result<Accepted, Reject>, f64)> {
+/// (`Snapshot::check_placement`): its verdict, with everything commit needs.
+pub fn stage_checks(snap: &Snapshot, batch: &[Candidate], items: &mut [Item], reached: Vec<Reached>, memos: &mut [Vec<FailAt>]) -> Vec<(Result<Accepted, Reject>, f64)> {
     items
         .par_iter_mut()
         .zip(reached.into_par_iter())
@@ -175,7 +179,7 @@ pub fn stage_checks(state: &State, batch: &[Candidate], items: &mut [Item], reac
             let t = Instant::now();
             let new_dirs = std::mem::take(&mut it.new_dirs);
             let c = &batch[it.candidate];
-            let r = state.check_placement(c, c.placements[it.placement], new_dirs, &it.tris, reached, first);
+            let r = snap.check_placement(c, c.placements[it.placement], new_dirs, &it.tris, reached, first);
             (r, t.elapsed().as_secs_f64())
         })
         .collect()
@@ -231,14 +235,14 @@ pub struct Round {
 
 impl Round {
     /// The round of `batch` before its first wave: each candidate with its fail memo.
-    pub fn new(state: &State, batch: &[Candidate]) -> Round {
-        let memo = |c: &Candidate| if state.fail_hints { c.first_fail.clone() } else { Vec::new() };
+    pub fn new(snap: &Snapshot, batch: &[Candidate]) -> Round {
+        let memo = |c: &Candidate| if snap.fail_hints { c.first_fail.clone() } else { Vec::new() };
         Round { tallies: batch.iter().map(|c| Tally { memo: memo(c), ..Tally::default() }).collect() }
     }
 
     /// An item that failed: its memo back to its candidate, the reason and time counted.
-    fn fail(&mut self, state: &State, ci: usize, memo: Vec<FailAt>, reason: Reject, seconds: f64) {
-        state.clock.failed(reason, seconds);
+    fn fail(&mut self, snap: &Snapshot, ci: usize, memo: Vec<FailAt>, reason: Reject, seconds: f64) {
+        snap.clock.failed(reason, seconds);
         let t = &mut self.tallies[ci];
         t.first_reason.get_or_insert(reason);
         t.memo = memo;
@@ -247,7 +251,7 @@ impl Round {
 
     /// A stage's results over `wave`: the failed items leave it; the others go on, with what
     /// the stage gave them.
-    fn sift<T>(&mut self, state: &State, wave: Wave, results: Vec<(Result<T, Reject>, f64)>) -> (Wave, Vec<T>) {
+    fn sift<T>(&mut self, snap: &Snapshot, wave: Wave, results: Vec<(Result<T, Reject>, f64)>) -> (Wave, Vec<T>) {
         let mut next = Wave { items: Vec::with_capacity(results.len()), memos: Vec::new(), seconds: Vec::new() };
         let mut out = Vec::with_capacity(results.len());
         for (((it, memo), s0), (r, s)) in wave.items.into_iter().zip(wave.memos).zip(wave.seconds).zip(results) {
@@ -258,7 +262,7 @@ impl Round {
                     next.seconds.push(s0 + s);
                     out.push(x);
                 }
-                Err(reason) => self.fail(state, it.candidate, memo, reason, s0 + s),
+                Err(reason) => self.fail(snap, it.candidate, memo, reason, s0 + s),
             }
         }
         (next, out)
@@ -266,13 +270,13 @@ impl Round {
 
     /// Gather and hints of wave `placement` — placement `placement` of every candidate still
     /// undecided that has one —: the items that pass the hints (`None`: no candidate has it).
-    pub fn gather(&mut self, state: &State, batch: &[Candidate], placement: usize) -> Option<Wave> {
+    pub fn gather(&mut self, snap: &Snapshot, batch: &[Candidate], placement: usize) -> Option<Wave> {
         let cands: Vec<usize> = (0..batch.len()).filter(|&ci| self.tallies[ci].accepted.is_none() && placement < batch[ci].placements.len()).collect();
         if cands.is_empty() {
             return None;
         }
         let mut wave = Wave { items: Vec::with_capacity(cands.len()), memos: Vec::new(), seconds: Vec::new() };
-        for ((built, s), &ci) in stage_neighbourhoods(state, batch, placement, &cands).into_iter().zip(&cands) {
+        for ((built, s), &ci) in stage_neighbourhoods(snap, batch, placement, &cands).into_iter().zip(&cands) {
             self.tallies[ci].tried += 1;
             let memo = std::mem::take(&mut self.tallies[ci].memo);
             match built {
@@ -281,24 +285,24 @@ impl Round {
                     wave.memos.push(memo);
                     wave.seconds.push(s);
                 }
-                Err(reason) => self.fail(state, ci, memo, reason, s),
+                Err(reason) => self.fail(snap, ci, memo, reason, s),
             }
         }
-        let hinted = stage_hints(state, batch, &mut wave.items, &mut wave.memos);
-        Some(self.sift(state, wave, hinted).0)
+        let hinted = stage_hints(snap, batch, &mut wave.items, &mut wave.memos);
+        Some(self.sift(snap, wave, hinted).0)
     }
 
     /// Primaries, reach and checks of a gathered wave.
-    fn test(&mut self, state: &State, batch: &[Candidate], primaries: &dyn Primaries, mut wave: Wave) -> Result<(), GpuError> {
-        let solved = primaries.solve(state, batch, &wave.items)?;
-        state.clock.add(Stage::Primaries, (solved.iter().map(|r| r.1).sum::<f64>() * 1e9) as u64);
+    fn test(&mut self, snap: &Snapshot, batch: &[Candidate], primaries: &dyn Primaries, mut wave: Wave) -> Result<(), GpuError> {
+        let solved = primaries.solve(snap, batch, &wave.items)?;
+        snap.clock.add(Stage::Primaries, (solved.iter().map(|r| r.1).sum::<f64>() * 1e9) as u64);
         // A region vertex without a solution (or, strict, with two) goes into the memo.
-        let solved: Vec<_> = solved.into_iter().zip(wave.memos.iter_mut()).map(|((r, s), memo)| (r.map_err(|failed| state.note_solve_failure(memo, failed)), s)).collect();
-        let (mut wave, maps) = self.sift(state, wave, solved);
-        let reached = stage_reach(state, batch, &mut wave.items, maps);
-        let (mut wave, reached) = self.sift(state, wave, reached);
-        let checked = stage_checks(state, batch, &mut wave.items, reached, &mut wave.memos);
-        let (wave, passed) = self.sift(state, wave, checked);
+        let solved: Vec<_> = solved.into_iter().zip(wave.memos.iter_mut()).map(|((r, s), memo)| (r.map_err(|failed| snap.note_solve_failure(memo, failed)), s)).collect();
+        let (mut wave, maps) = self.sift(snap, wave, solved);
+        let reached = stage_reach(snap, batch, &mut wave.items, maps);
+        let (mut wave, reached) = self.sift(snap, wave, reached);
+        let checked = stage_checks(snap, batch, &mut wave.items, reached, &mut wave.memos);
+        let (wave, passed) = self.sift(snap, wave, checked);
         for (((it, memo), s), acc) in wave.items.into_iter().zip(wave.memos).zip(wave.seconds).zip(passed) {
             let t = &mut self.tallies[it.candidate];
             t.memo = memo;
@@ -309,21 +313,21 @@ impl Round {
     }
 
     /// The waves from placement `from` on.
-    fn run(&mut self, state: &State, batch: &[Candidate], primaries: &dyn Primaries, from: usize) -> Result<(), GpuError> {
+    fn run(&mut self, snap: &Snapshot, batch: &[Candidate], primaries: &dyn Primaries, from: usize) -> Result<(), GpuError> {
         let waves = batch.iter().map(|c| c.placements.len()).max().unwrap_or(0);
         for placement in from..waves {
-            let Some(wave) = self.gather(state, batch, placement) else { break };
-            self.test(state, batch, primaries, wave)?;
+            let Some(wave) = self.gather(snap, batch, placement) else { break };
+            self.test(snap, batch, primaries, wave)?;
         }
         Ok(())
     }
 
     /// The outcomes, in batch order.
-    fn outcomes(self, state: &State) -> Vec<Outcome> {
+    fn outcomes(self, snap: &Snapshot) -> Vec<Outcome> {
         self.tallies
             .into_iter()
             .map(|t| {
-                state.clock.candidate(t.accepted.is_some(), t.tried, t.spent);
+                snap.clock.candidate(t.accepted.is_some(), t.tried, t.spent);
                 match t.accepted {
                     Some(acc) => Ok(Accepted { test_s: t.spent, ..acc }),
                     None => Err(Rejected { reason: t.first_reason.unwrap_or(Reject::Link), at: t.memo }),
@@ -337,7 +341,7 @@ impl Round {
     /// `primaries(ci)` (the GPU's: the first placement's answers from the round's dispatch, a
     /// later placement's by the f64 search, at once). The GPU evaluator's schedule: one
     /// dispatch a round, for its first wave, and no candidate waits for another's stage.
-    pub fn finish_each_alone<P: Primaries>(self, state: &State, batch: &[Candidate], first: Wave, primaries: impl Fn(usize) -> P + Sync) -> Result<Vec<Outcome>, GpuError> {
+    pub fn finish_each_alone<P: Primaries>(self, snap: &Snapshot, batch: &[Candidate], first: Wave, primaries: impl Fn(usize) -> P + Sync) -> Result<Vec<Outcome>, GpuError> {
         let waves = first.split(batch.len());
         batch
             .par_iter()
@@ -349,10 +353,10 @@ impl Round {
                 let mut alone = Round { tallies: vec![tally] };
                 let primaries = primaries(ci);
                 if !wave.items.is_empty() {
-                    alone.test(state, one, &primaries, wave)?;
+                    alone.test(snap, one, &primaries, wave)?;
                 }
-                alone.run(state, one, &primaries, 1)?;
-                Ok(alone.outcomes(state).remove(0))
+                alone.run(snap, one, &primaries, 1)?;
+                Ok(alone.outcomes(snap).remove(0))
             })
             .collect()
     }
@@ -360,10 +364,10 @@ impl Round {
 
 /// Tests a round's candidates through the stages, wave by wave; outcomes in batch order.
 /// Fails only when the device of a GPU `primaries` stage fails.
-pub fn evaluate_round(state: &State, batch: &[Candidate], primaries: &dyn Primaries) -> Result<Vec<Outcome>, GpuError> {
-    let mut round = Round::new(state, batch);
-    round.run(state, batch, primaries, 0)?;
-    Ok(round.outcomes(state))
+pub fn evaluate_round(snap: &Snapshot, batch: &[Candidate], primaries: &dyn Primaries) -> Result<Vec<Outcome>, GpuError> {
+    let mut round = Round::new(snap, batch);
+    round.run(snap, batch, primaries, 0)?;
+    Ok(round.outcomes(snap))
 }
 
 #[cfg(test)]

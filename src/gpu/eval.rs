@@ -13,7 +13,7 @@
 //! band.
 
 use crate::geometry::bvh::Bvh;
-use crate::decimate::{Candidate, State};
+use crate::decimate::{Candidate, Snapshot};
 use crate::decimate::{Evaluator, Outcome};
 use crate::eval::pipeline::{self, Item, Primaries, Solved};
 use crate::guarantee::{best_on_triangle, find_primary, Found, Map, NormalMode, Scratch, Tris};
@@ -266,7 +266,7 @@ impl GpuEvaluator {
     /// The kernel's buffers for a round's first wave (or the parity test's placements): each
     /// item's neighbourhood (relative to its first corner) and one query per region vertex
     /// (`Candidate::dense` order), and where each item's queries start.
-    fn queries<'a>(state: &State, batch: &[Candidate], items: impl Iterator<Item = (usize, &'a Tris)>) -> (Vec<GpuTri>, Vec<GpuQuery>, Vec<usize>) {
+    fn queries<'a>(snap: &Snapshot, batch: &[Candidate], items: impl Iterator<Item = (usize, &'a Tris)>) -> (Vec<GpuTri>, Vec<GpuQuery>, Vec<usize>) {
         let (mut gtris, mut queries, mut first) = (Vec::new(), Vec::new(), Vec::new());
         for (ci, tris) in items {
             let c = &batch[ci];
@@ -275,21 +275,21 @@ impl GpuEvaluator {
             let tri_start = gtris.len() as u32;
             gtris.extend((0..tris.len()).map(|t| gpu_tri(tris, t, origin)));
             for &v in &c.dense {
-                let pinched = state.dense.pinched[v as usize];
+                let pinched = snap.dense.pinched[v as usize];
                 let mut flags = 0;
                 if !pinched {
                     flags |= FLAG_CHECK4;
-                    if state.strict {
+                    if snap.strict {
                         flags |= FLAG_STRICT;
                     }
                 }
                 queries.push(GpuQuery {
-                    x: v3(state.dense.pos[v as usize] - origin),
+                    x: v3(snap.dense.pos[v as usize] - origin),
                     vertex: v,
                     tri_start,
                     tri_count: tris.len() as u32,
                     flags,
-                    hint: tris.index_of(state.assoc[v as usize].face).map_or(INVALID, |t| t as u32),
+                    hint: tris.index_of(snap.assoc[v as usize].face).map_or(INVALID, |t| t as u32),
                 });
             }
         }
@@ -299,15 +299,15 @@ impl GpuEvaluator {
     /// The kernel's raw answers for every (candidate, placement, dense vertex) of a batch, with
     /// each placement's neighbourhood: for the parity test, which compares them with
     /// [`find_primary`] on the same neighbourhoods.
-    pub fn raw_answers(&self, state: &State, batch: &[Candidate]) -> Result<Vec<(usize, usize, Tris, Vec<GpuAnswer>)>, GpuError> {
+    pub fn raw_answers(&self, snap: &Snapshot, batch: &[Candidate]) -> Result<Vec<(usize, usize, Tris, Vec<GpuAnswer>)>, GpuError> {
         let waves = batch.iter().map(|c| c.placements.len()).max().unwrap_or(0);
         let mut built = Vec::new();
         for pi in 0..waves {
             let cands: Vec<usize> = (0..batch.len()).filter(|&ci| pi < batch[ci].placements.len()).collect();
-            built.extend(pipeline::stage_neighbourhoods(state, batch, pi, &cands).into_iter().filter_map(|(it, _)| it.ok()).map(|it| (it.candidate, pi, it.tris)));
+            built.extend(pipeline::stage_neighbourhoods(snap, batch, pi, &cands).into_iter().filter_map(|(it, _)| it.ok()).map(|it| (it.candidate, pi, it.tris)));
         }
-        let (gtris, queries, first) = Self::queries(state, batch, built.iter().map(|(ci, _, t)| (*ci, t)));
-        let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
+        let (gtris, queries, first) = Self::queries(snap, batch, built.iter().map(|(ci, _, t)| (*ci, t)));
+        let answers = self.kernel.run(ShellEntry::Candidates, snap.dmax as f32, mode_code(snap.mode), &gtris, &[], &queries)?;
         Ok(built
             .into_iter()
             .zip(first)
@@ -397,21 +397,21 @@ impl Evaluator for GpuEvaluator {
     /// first placement's primaries settled from the kernel's answers, a later placement's
     /// (after the first failed) by the f64 search, at once, rather than wait for the round's
     /// next dispatch.
-    fn evaluate(&self, state: &State, batch: &[Candidate]) -> Result<Vec<Outcome>, GpuError> {
-        let mut round = pipeline::Round::new(state, batch);
-        let Some(first) = round.gather(state, batch, 0) else {
-            return round.finish_each_alone(state, batch, Default::default(), |_| FirstPlacement { gpu: self, answers: &[] });
+    fn evaluate(&self, snap: &Snapshot, batch: &[Candidate]) -> Result<Vec<Outcome>, GpuError> {
+        let mut round = pipeline::Round::new(snap, batch);
+        let Some(first) = round.gather(snap, batch, 0) else {
+            return round.finish_each_alone(snap, batch, Default::default(), |_| FirstPlacement { gpu: self, answers: &[] });
         };
-        let (gtris, queries, starts) = Self::queries(state, batch, first.items().iter().map(|it| (it.candidate, &it.tris)));
+        let (gtris, queries, starts) = Self::queries(snap, batch, first.items().iter().map(|it| (it.candidate, &it.tris)));
         let t0 = Instant::now();
-        let answers = self.kernel.run(ShellEntry::Candidates, state.dmax as f32, mode_code(state.mode), &gtris, &[], &queries)?;
+        let answers = self.kernel.run(ShellEntry::Candidates, snap.dmax as f32, mode_code(snap.mode), &gtris, &[], &queries)?;
         self.add_stats(&answers, 0, t0.elapsed().as_secs_f64());
         // Where each candidate's answers lie (a candidate with no item has none).
         let mut at = vec![(0, 0); batch.len()];
         for (it, q) in first.items().iter().zip(starts) {
             at[it.candidate] = (q, q + batch[it.candidate].dense.len());
         }
-        round.finish_each_alone(state, batch, first, |ci| FirstPlacement { gpu: self, answers: &answers[at[ci].0..at[ci].1] })
+        round.finish_each_alone(snap, batch, first, |ci| FirstPlacement { gpu: self, answers: &answers[at[ci].0..at[ci].1] })
     }
 }
 
@@ -426,7 +426,7 @@ struct FirstPlacement<'a> {
 }
 
 impl Primaries for FirstPlacement<'_> {
-    fn solve(&self, state: &State, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64)>, GpuError> {
+    fn solve(&self, snap: &Snapshot, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64)>, GpuError> {
         items
             .iter()
             .map(|it| {
@@ -435,19 +435,19 @@ impl Primaries for FirstPlacement<'_> {
                     // A later placement, tried because the first failed: the f64 search now
                     // rather than another dispatch.
                     self.gpu.add_later_placement(c.dense.len());
-                    return pipeline::CpuPrimaries.solve(state, batch, std::slice::from_ref(it)).map(|mut r| r.remove(0));
+                    return pipeline::CpuPrimaries.solve(snap, batch, std::slice::from_ref(it)).map(|mut r| r.remove(0));
                 }
                 let t = Instant::now();
                 let tris = &it.tris;
-                let (solved, states) = state.solve_region_vertices(
+                let (solved, states) = snap.solve_region_vertices(
                     c,
                     tris,
                     || (Scratch::default(), Vec::new(), 0u64),
                     |(scratch, normals, disagreements), i, x, pinched| {
-                        state.dense.vertex_normals(c.dense[i], normals);
-                        let (check4, strict) = (!pinched, state.strict && !pinched);
-                        settle(&self.answers[i], x, normals, tris, state.mode, state.dmax, check4, disagreements, || {
-                            find_primary(x, normals, tris, state.mode, state.dmax, check4, strict, scratch)
+                        snap.dense.vertex_normals(c.dense[i], normals);
+                        let (check4, strict) = (!pinched, snap.strict && !pinched);
+                        settle(&self.answers[i], x, normals, tris, snap.mode, snap.dmax, check4, disagreements, || {
+                            find_primary(x, normals, tris, snap.mode, snap.dmax, check4, strict, scratch)
                         })
                     },
                 );
