@@ -195,6 +195,18 @@ pub struct Wave {
 }
 
 impl Wave {
+    /// An empty wave with room for `n` items.
+    fn with_capacity(n: usize) -> Wave {
+        Wave { items: Vec::with_capacity(n), memos: Vec::with_capacity(n), seconds: Vec::with_capacity(n) }
+    }
+
+    /// Adds an item with its candidate's fail memo and the seconds it took so far.
+    fn push(&mut self, it: Item, memo: Vec<FailAt>, seconds: f64) {
+        self.items.push(it);
+        self.memos.push(memo);
+        self.seconds.push(seconds);
+    }
+
     /// The wave's items, in batch order.
     pub fn items(&self) -> &[Item] {
         &self.items
@@ -205,10 +217,8 @@ impl Wave {
     fn split(self, n: usize) -> Vec<Wave> {
         let mut out: Vec<Wave> = (0..n).map(|_| Wave::default()).collect();
         for ((it, memo), s) in self.items.into_iter().zip(self.memos).zip(self.seconds) {
-            let w = &mut out[it.candidate];
-            w.items.push(Item { candidate: 0, ..it });
-            w.memos.push(memo);
-            w.seconds.push(s);
+            let ci = it.candidate;
+            out[ci].push(Item { candidate: 0, ..it }, memo, s);
         }
         out
     }
@@ -252,14 +262,12 @@ impl Round {
     /// A stage's results over `wave`: the failed items leave it; the others go on, with what
     /// the stage gave them.
     fn sift<T>(&mut self, snap: &Snapshot, wave: Wave, results: Vec<(Result<T, Reject>, f64)>) -> (Wave, Vec<T>) {
-        let mut next = Wave { items: Vec::with_capacity(results.len()), memos: Vec::new(), seconds: Vec::new() };
+        let mut next = Wave::with_capacity(results.len());
         let mut out = Vec::with_capacity(results.len());
         for (((it, memo), s0), (r, s)) in wave.items.into_iter().zip(wave.memos).zip(wave.seconds).zip(results) {
             match r {
                 Ok(x) => {
-                    next.items.push(it);
-                    next.memos.push(memo);
-                    next.seconds.push(s0 + s);
+                    next.push(it, memo, s0 + s);
                     out.push(x);
                 }
                 Err(reason) => self.fail(snap, it.candidate, memo, reason, s0 + s),
@@ -275,15 +283,13 @@ impl Round {
         if cands.is_empty() {
             return None;
         }
-        let mut wave = Wave { items: Vec::with_capacity(cands.len()), memos: Vec::new(), seconds: Vec::new() };
+        let mut wave = Wave::with_capacity(cands.len());
         for ((built, s), &ci) in stage_neighbourhoods(snap, batch, placement, &cands).into_iter().zip(&cands) {
             self.tallies[ci].tried += 1;
             let memo = std::mem::take(&mut self.tallies[ci].memo);
             match built {
                 Ok(it) => {
-                    wave.items.push(it);
-                    wave.memos.push(memo);
-                    wave.seconds.push(s);
+                    wave.push(it, memo, s);
                 }
                 Err(reason) => self.fail(snap, ci, memo, reason, s),
             }
