@@ -55,6 +55,30 @@ fn assert_near(name: &str, faces: u64, readme: u64) {
     assert!((lo..=hi).contains(&faces), "{name}: {faces} faces, README says {readme} (±5 %: {lo}..{hi})");
 }
 
+/// The report's `collapses.levels`: one entry per halving of the base, from the scan's face
+/// count down, each level's distinct dense triangles at most the scan's, and the tests of the
+/// 2-ring checking each one again and again — README, Benchmark: the bunny 12.9 times per
+/// halving over the run (11.4–16.8 by level), the horse 13.1 (2.5 in its last, partial
+/// halving, 12.2–17.5 in the others): `expected`, asserted within 10 %.
+fn assert_rechecks(name: &str, r: &Value, expected: f64) {
+    let levels = r["collapses"]["levels"].as_array().unwrap();
+    let faces_in = r["faces_in"].as_u64().unwrap();
+    let faces_out = r["faces_out"].as_u64().unwrap();
+    assert_eq!(levels[0]["faces_from"].as_u64(), Some(faces_in), "{name}: {levels:?}");
+    // One level per halving from faces_in down to faces_out (the last one taken part way).
+    let halvings = (faces_in as f64 / faces_out as f64).log2().ceil() as usize;
+    assert!(levels.len() == halvings || levels.len() + 1 == halvings, "{name}: {} levels for {halvings} halvings", levels.len());
+    let (mut checked, mut distinct) = (0, 0);
+    for l in levels {
+        assert!(l["distinct_dense_faces"].as_u64().unwrap() <= faces_in);
+        checked += l["dense_faces_checked"].as_u64().unwrap();
+        distinct += l["distinct_dense_faces"].as_u64().unwrap();
+    }
+    let ratio = checked as f64 / distinct as f64;
+    let (lo, hi) = (expected * 0.9, expected * 1.1);
+    assert!((lo..=hi).contains(&ratio), "{name}: each dense triangle checked {ratio:.2} times per halving (README: {expected} ± 10 %)");
+}
+
 /// README's results table (`bash scripts/results.sh`).
 const BUNNY_FACES: u64 = 145;
 const HORSE_FACES: u64 = 366;
@@ -92,6 +116,7 @@ fn bunny_reaches_the_paper_and_carries_the_scan() {
     assert_carries(&r);
     // Candidates of one round that read what an earlier commit changed were deferred.
     assert!(r["collapses"]["deferred"].as_u64().unwrap() > 0, "{}", r["collapses"]);
+    assert_rechecks("bunny", &r, 12.9);
     assert_eq!(r["genus"], 0);
     assert_eq!(r["boundary_loops_in"], 5);
     assert_eq!(r["boundary_loops_out"], 5);
@@ -105,8 +130,9 @@ fn bunny_reaches_the_paper_and_carries_the_scan() {
     assert!(mf.records.iter().filter(|x| x.status == 0).all(|x| (x.face as u64) < faces && x.d.abs() <= mf.dmax));
 
     // Determinism: the same bytes with one thread as with all of them.
-    let (_, obj1, map1) = decimate(&bunny, &dir, "b1", &["--threads", "1"]);
+    let (r1, obj1, map1) = decimate(&bunny, &dir, "b1", &["--threads", "1"]);
     assert!(obj == obj1 && map == map1, "--threads 1 must give the same bytes");
+    assert_eq!(r1["collapses"]["levels"], r["collapses"]["levels"], "the re-check counts do not depend on the threads");
 }
 
 /// `--strict` and `--normals constant` on the 6,050-face generated sample (seed 7): strict is
@@ -175,6 +201,7 @@ fn horse_reaches_the_paper_and_carries_the_scan() {
     assert!(faces <= 502, "horse: {faces} faces, the paper reached 502");
     assert_near("horse", faces, HORSE_FACES);
     assert_carries(&r);
+    assert_rechecks("horse", &r, 13.1);
     assert_base_obj(&obj, faces, 0, 0);
 
     // The fold image of the valid base: the scan covers each base face about once. Measured on

@@ -137,6 +137,56 @@ pub struct Stats {
     pub widest_round: u64,
     /// Where the candidate test's CPU time went (filled at the end of a run).
     pub stages: crate::decimate::stages::StageSummary,
+    /// How often the accepted collapses' tests checked the same dense triangles again, per
+    /// halving of the base ([`LevelChecks`]).
+    pub levels: Vec<LevelChecks>,
+}
+
+/// The accepted collapses of one halving of the base — level k takes the base from
+/// `faces_in / 2^k` faces down to half that — and the dense triangles their tests checked:
+/// each one's region triangles counted once per collapse (`dense_faces_checked`), and once
+/// however many collapses checked it (`distinct_dense_faces`). Their ratio is how often SPEC
+/// §2's per-collapse test of the 2-ring checks a dense triangle again within one halving.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct LevelChecks {
+    pub faces_from: u64,
+    pub faces_to: u64,
+    pub collapses: u64,
+    pub dense_faces_checked: u64,
+    pub distinct_dense_faces: u64,
+}
+
+/// The running count behind [`Stats::levels`]: the level's bit per dense triangle.
+#[derive(Default)]
+struct LevelCount {
+    level: Option<u32>,
+    seen: Vec<u64>,
+}
+
+impl LevelCount {
+    /// Counts an accepted collapse taken at `faces` base faces (of `faces_in`) whose test
+    /// checked the dense triangles `dense_faces`.
+    /// (The base starts as the scan: `faces_in` is also the number of dense triangles.)
+    fn add(&mut self, levels: &mut Vec<LevelChecks>, faces_in: usize, faces: usize, dense_faces: &[u32]) {
+        // The halvings: faces in (faces_in / 2^(k+1), faces_in / 2^k].
+        let k = (0..63u32).find(|&k| faces > faces_in >> (k + 1)).unwrap_or(63);
+        if self.level != Some(k) {
+            self.level = Some(k);
+            self.seen.clear();
+            self.seen.resize(faces_in.div_ceil(64), 0);
+            levels.push(LevelChecks { faces_from: (faces_in >> k) as u64, faces_to: (faces_in >> (k + 1)) as u64, ..Default::default() });
+        }
+        let l = levels.last_mut().expect("pushed above");
+        l.collapses += 1;
+        l.dense_faces_checked += dense_faces.len() as u64;
+        for &f in dense_faces {
+            let (w, b) = (f as usize / 64, 1u64 << (f % 64));
+            if self.seen[w] & b == 0 {
+                self.seen[w] |= b;
+                l.distinct_dense_faces += 1;
+            }
+        }
+    }
 }
 
 /// The decimation state: what a round's candidate tests read ([`Snapshot`], reached through
@@ -150,6 +200,7 @@ pub struct State {
     /// Where the last try of a rejected edge failed, by edge key (see `Candidate::first_fail`).
     fail_memo: FxHashMap<u64, Vec<FailAt>>,
     pub stats: Stats,
+    levels: LevelCount,
 }
 
 impl std::ops::Deref for State {
@@ -295,7 +346,7 @@ impl State {
             clock: Default::default(),
             fail_hints: true,
         };
-        let mut st = State { snap, heap: BinaryHeap::new(), queued: FxHashSet::default(), fail_memo: FxHashMap::default(), stats: Stats::default() };
+        let mut st = State { snap, heap: BinaryHeap::new(), queued: FxHashSet::default(), fail_memo: FxHashMap::default(), stats: Stats::default(), levels: LevelCount::default() };
         st.edge_reach_max = st.edge_reach.iter().copied().fold(0.0, f64::max);
         st.dir = (0..nv as u32).into_par_iter().map(|v| st.compute_dir(v)).collect();
         // Interpolated directions see every vertex of the scan (the direction rule); in
@@ -577,6 +628,8 @@ impl State {
             };
             self.fail_memo.remove(&edge_key(c.u, c.w));
             self.stats.accepted += 1;
+            let (faces_in, faces) = (self.dense.faces.len(), self.face_count);
+            self.levels.add(&mut self.stats.levels, faces_in, faces, &c.dense_faces);
             self.stats.placement_wins[acc.placement.min(2)] += 1;
             let removed = self.topo.collapse(c.he);
             self.face_count -= removed.iter().filter(|&&f| f != INVALID).count();
@@ -885,6 +938,22 @@ fn round_move(pos: &[DVec3], batch: &[Candidate]) -> f64 {
 mod tests {
     use super::*;
     use crate::eval::CpuEvaluator;
+
+    /// Collapses taken at 100, 90 and 51 base faces (of 100) fall in the first halving, at 50
+    /// and 26 in the second, at 12 in the fourth (the third was skipped): each level counts its
+    /// collapses, their dense triangles and the distinct ones, from a fresh set.
+    #[test]
+    fn level_counts_recheck_within_each_halving_only() {
+        let (mut count, mut levels) = (LevelCount::default(), Vec::new());
+        count.add(&mut levels, 100, 100, &[1, 2, 3]);
+        count.add(&mut levels, 100, 90, &[2, 3, 4]);
+        count.add(&mut levels, 100, 51, &[4, 99]);
+        count.add(&mut levels, 100, 50, &[1, 2]);
+        count.add(&mut levels, 100, 26, &[2]);
+        count.add(&mut levels, 100, 12, &[7, 7]);
+        let got: Vec<_> = levels.iter().map(|l| (l.faces_from, l.faces_to, l.collapses, l.dense_faces_checked, l.distinct_dense_faces)).collect();
+        assert_eq!(got, vec![(100, 50, 3, 8, 5), (50, 25, 2, 3, 2), (12, 6, 1, 2, 1)]);
+    }
 
     /// A bumpy n × n grid (a scan-like open disk).
     fn grid_mesh(n: usize) -> DenseMesh {
