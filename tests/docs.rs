@@ -3,7 +3,7 @@
 //! GitHub slug of one of that page's headings. (The measurement logs moved from the README to
 //! `docs/`; a section renamed or moved again would otherwise leave links that go nowhere.)
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// GitHub's anchor of a heading: lower case, punctuation other than `-` and `_` dropped,
@@ -81,12 +81,20 @@ fn pages(root: &Path) -> Vec<PathBuf> {
 #[test]
 fn every_link_between_the_readme_and_docs_resolves() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    // Each page read once: its text and its headings' anchors.
+    let texts: BTreeMap<PathBuf, (String, BTreeSet<String>)> = pages(root)
+        .into_iter()
+        .map(|p| {
+            let text = std::fs::read_to_string(&p).unwrap();
+            let a = anchors(&text);
+            (p.canonicalize().unwrap(), (text, a))
+        })
+        .collect();
     let mut broken = Vec::new();
     let mut checked = 0;
-    for page in pages(root) {
-        let text = std::fs::read_to_string(&page).unwrap();
+    for (page, (text, _)) in &texts {
         let dir = page.parent().unwrap();
-        for target in links(&text) {
+        for target in links(text) {
             if target.starts_with("http://") || target.starts_with("https://") || target.starts_with("mailto:") {
                 continue;
             }
@@ -96,13 +104,16 @@ fn every_link_between_the_readme_and_docs_resolves() {
                 None => (target.as_str(), None),
             };
             let dest = if file.is_empty() { page.clone() } else { dir.join(file) };
-            if !dest.exists() {
+            let Ok(dest) = dest.canonicalize() else {
                 broken.push(format!("{}: {target} (no such file)", page.display()));
                 continue;
-            }
+            };
             if let Some(a) = anchor {
-                let body = std::fs::read_to_string(&dest).unwrap_or_default();
-                if !anchors(&body).contains(a) {
+                let found = match texts.get(&dest) {
+                    Some((_, known)) => known.contains(a),
+                    None => anchors(&std::fs::read_to_string(&dest).unwrap_or_default()).contains(a),
+                };
+                if !found {
                     broken.push(format!("{}: {target} (no heading with that anchor)", page.display()));
                 }
             }

@@ -156,10 +156,10 @@ pub struct LevelChecks {
     pub distinct_dense_faces: u64,
 }
 
-/// The running count behind [`Stats::levels`]: the level's bit per dense triangle.
+/// The running count behind [`Stats::levels`]: the current level's bit per dense triangle
+/// (the level itself is the last entry of the list it counts into).
 #[derive(Default)]
 struct LevelCount {
-    level: Option<u32>,
     seen: Vec<u64>,
 }
 
@@ -170,11 +170,11 @@ impl LevelCount {
     fn add(&mut self, levels: &mut Vec<LevelChecks>, faces_in: usize, faces: usize, dense_faces: &[u32]) {
         // The halvings: faces in (faces_in / 2^(k+1), faces_in / 2^k].
         let k = (0..63u32).find(|&k| faces > faces_in >> (k + 1)).unwrap_or(63);
-        if self.level != Some(k) {
-            self.level = Some(k);
+        let from = (faces_in >> k) as u64;
+        if levels.last().map(|l| l.faces_from) != Some(from) {
             self.seen.clear();
             self.seen.resize(faces_in.div_ceil(64), 0);
-            levels.push(LevelChecks { faces_from: (faces_in >> k) as u64, faces_to: (faces_in >> (k + 1)) as u64, ..Default::default() });
+            levels.push(LevelChecks { faces_from: from, faces_to: (faces_in >> (k + 1)) as u64, ..Default::default() });
         }
         let l = levels.last_mut().expect("pushed above");
         l.collapses += 1;
