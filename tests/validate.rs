@@ -171,7 +171,8 @@ fn quadric_error_base_of_the_bunny_fails_where_dispdecs_passes() {
 
 /// The bases of `../shared/fixtures`, made outside the project, judged by SPEC §1's exact
 /// rule: none carries its scan (jumps count as tears). The figures are this validator's (see
-/// README, "Bases made elsewhere"); the brute-force mode gives the same verdict and counts.
+/// README, "Bases made elsewhere"); the brute-force mode gives the same verdict and counts,
+/// second solutions (ambiguous, far hits) included.
 #[test]
 fn fixtures_are_judged_and_the_exhaustive_mode_agrees() {
     let fixtures = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/fixtures");
@@ -209,6 +210,13 @@ fn fixtures_are_judged_and_the_exhaustive_mode_agrees() {
             );
             assert_eq!(got, (unmapped, pinched, flipped, torn, jumps, gaps), "{fx} {extra:?}: {v}");
             assert_eq!(v["exhaustive"], extra.contains(&"--exhaustive"));
+            // Second solutions by brute force (every base triangle) against the fast path's
+            // (the BVH within dmax, culled by the triangles' bounds): the same counts.
+            if extra.contains(&"--exhaustive") {
+                for key in ["ambiguous", "far_hits"] {
+                    assert_eq!(v[key], cpu_verdict[key], "{fx}: {key} by brute force and by the fast path");
+                }
+            }
         }
         // The same base with its `f` lines in reverse order gets the same verdict, every count
         // and list alike: where two distinct solutions' |d| nearly tie, the primary goes by the

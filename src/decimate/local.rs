@@ -410,7 +410,7 @@ impl Snapshot {
     }
 
     /// Appends live face `f` as it is now, with its bounds `b` ([`Snapshot::bounds_of`]).
-    fn push_face(&self, t: &mut Tris, f: u32, b: &crate::guarantee::TriBounds) {
+    pub(super) fn push_face(&self, t: &mut Tris, f: u32, b: &crate::guarantee::TriBounds) {
         let info = self.face_info_current(f);
         t.push_with(f, info.verts, info.pos, info.dir, b);
     }

@@ -823,6 +823,17 @@ impl State {
 impl Snapshot {
     /// Triangles of the 2-ring around face `f` (faces sharing a vertex with f, and theirs).
     pub fn two_ring_tris(&self, f: u32, tris: &mut Tris) {
+        let mut faces = Vec::new();
+        self.two_ring_faces(f, &mut faces);
+        tris.clear();
+        for g in faces {
+            self.push_face(tris, g, &self.bounds_of(g));
+        }
+        tris.finish();
+    }
+
+    /// The live faces of the 2-ring around face `f`, ascending.
+    pub(crate) fn two_ring_faces(&self, f: u32, faces: &mut Vec<u32>) {
         let (mut s, mut tmp) = (Vec::new(), Vec::new());
         let mut ring1 = Vec::new();
         for v in self.topo.face(f) {
@@ -834,19 +845,13 @@ impl Snapshot {
         let mut verts: Vec<u32> = ring1.iter().flat_map(|&g| self.topo.face(g)).collect();
         verts.sort_unstable();
         verts.dedup();
-        let mut faces = Vec::new();
+        faces.clear();
         for v in verts {
             self.topo.faces_around(v, &mut s, &mut tmp);
             faces.extend_from_slice(&tmp);
         }
         faces.sort_unstable();
         faces.dedup();
-        tris.clear();
-        for g in faces {
-            let info = self.face_info_current(g);
-            tris.push(g, info.verts, info.pos, info.dir);
-        }
-        tris.finish();
     }
 
     /// A live face containing all of `verts`.

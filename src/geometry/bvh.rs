@@ -81,6 +81,28 @@ impl Bvh {
         &self.order[node.a as usize..(node.a + node.count) as usize]
     }
 
+    /// Calls `f` with every triangle of the leaves whose box lies within `limit` of `x` (a
+    /// superset of [`Bvh::near`]'s, unsorted, in the tree's order): for a caller with a sharper
+    /// test of its own.
+    pub fn visit_within(&self, x: DVec3, limit: f64, mut f: impl FnMut(u32)) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        let mut stack = vec![0u32];
+        while let Some(n) = stack.pop() {
+            let node = self.nodes[n as usize];
+            if x.clamp(node.lo, node.hi).distance(x) > limit {
+                continue;
+            }
+            if node.count > 0 {
+                self.leaf(&node).iter().for_each(|&t| f(t));
+            } else {
+                stack.push(node.a);
+                stack.push(node.b);
+            }
+        }
+    }
+
     /// Triangles whose distance to `x` is at most `limit`, ascending by (distance, index).
     pub fn near(&self, pos: &[DVec3], faces: &[[u32; 3]], x: DVec3, limit: f64, out: &mut Vec<(f64, u32)>) {
         out.clear();

@@ -12,7 +12,6 @@
 //! decisions, maps and output bytes as the CPU path; the counters say how much work fell in the
 //! band.
 
-use crate::geometry::bvh::Bvh;
 use crate::decimate::{Candidate, Snapshot};
 use crate::decimate::{Evaluator, Outcome};
 use crate::eval::pipeline::{self, Item, Primaries, Solved};
@@ -317,8 +316,9 @@ impl GpuEvaluator {
 
     /// Projects every dense vertex onto the whole base (the validator's first step): the
     /// primary solution of each, `None` when it has none.
-    fn project_impl(&self, dense: &DenseData, base: &crate::validate::Base, bvh: &Bvh, mode: NormalMode, dmax: f64) -> Result<Vec<Option<Map>>, GpuError> {
+    fn project_impl(&self, dense: &DenseData, index: &crate::validate::BaseIndex, mode: NormalMode, dmax: f64) -> Result<Vec<Option<Map>>, GpuError> {
         let t0 = Instant::now();
+        let (base, bvh) = (index.base, &index.bvh);
         let (lo, hi) = base.positions.iter().fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(l, h), &p| (l.min(p), h.max(p)));
         let origin = if base.positions.is_empty() { DVec3::ZERO } else { 0.5 * (lo + hi) };
         // Triangles in BVH order, so that a leaf is a contiguous range.
@@ -363,7 +363,7 @@ impl GpuEvaluator {
                     let check4 = !dense.pinched[v];
                     let mut dis = 0;
                     let found = settle(a, x, normals, &all, mode, dmax, check4, &mut dis, || {
-                        match crate::validate::primary_global(base, bvh, x, normals, mode, dmax, check4, scratch, near, tris) {
+                        match crate::validate::primary_global(index, x, normals, mode, dmax, check4, scratch, near, tris) {
                             Some(m) => all.index_of(m.face).map_or(Found::None, |t| Found::Hit(t, ShellHit { d: m.d, bary: m.bary })),
                             None => Found::None,
                         }
@@ -381,8 +381,8 @@ impl GpuEvaluator {
 }
 
 impl crate::validate::Project for GpuEvaluator {
-    fn project(&self, dense: &DenseData, base: &crate::validate::Base, bvh: &Bvh, mode: NormalMode, dmax: f64) -> Result<Vec<Option<Map>>, GpuError> {
-        self.project_impl(dense, base, bvh, mode, dmax)
+    fn project(&self, dense: &DenseData, index: &crate::validate::BaseIndex, mode: NormalMode, dmax: f64) -> Result<Vec<Option<Map>>, GpuError> {
+        self.project_impl(dense, index, mode, dmax)
     }
 }
 

@@ -243,15 +243,21 @@ pub enum Found {
 /// distance to the triangle where the directions are close to the normal.
 #[inline]
 pub fn shell_lower_bound(x: DVec3, tris: &Tris, t: usize, mode: NormalMode) -> f64 {
-    let dist = triangle_distance(x, &tris.pos[t]);
+    shell_lower_bound_of(x, &tris.pos[t], tris.slope[t], tris.sphere[t].1, mode)
+}
+
+/// [`shell_lower_bound`] of a triangle given by its corners, its [`TriBounds::slope`] and its
+/// bounding sphere's radius.
+#[inline]
+pub fn shell_lower_bound_of(x: DVec3, pos: &[DVec3; 3], slope: (DVec3, f64, f64), size: f64, mode: NormalMode) -> f64 {
+    let dist = triangle_distance(x, pos);
     let (n, nu, tau) = match mode {
-        NormalMode::Interpolated => tris.slope[t],
-        NormalMode::Constant => (tris.slope[t].0, 1.0, 0.0),
+        NormalMode::Interpolated => slope,
+        NormalMode::Constant => (slope.0, 1.0, 0.0),
     };
-    let h = (x - tris.pos[t][0]).dot(n).abs().min(dist);
+    let h = (x - pos[0]).dot(n).abs().min(dist);
     let r = (dist * dist - h * h).max(0.0).sqrt();
     // Slack for rounding: BARY_EPS lets X sit that far outside the triangle.
-    let size = tris.sphere[t].1;
     let r = (r - 1e-6 * size).max(0.0);
     let by_h = if h == 0.0 { 0.0 } else if nu > 0.0 { h / nu } else { f64::INFINITY };
     let by_r = if r == 0.0 { 0.0 } else if tau > 0.0 { r / tau } else { f64::INFINITY };
@@ -276,9 +282,15 @@ pub fn shell_lower_bound(x: DVec3, tris: &Tris, t: usize, mode: NormalMode) -> f
 /// ```
 #[inline]
 pub fn lean_lower_bound(x: DVec3, tris: &Tris, t: usize, dmax: f64) -> f64 {
-    let (n, n_hi, _) = tris.slope[t];
-    let (l, p) = (&tris.lean[t], &tris.pos[t]);
-    let slack = LEAN_SLACK_SIZE * tris.sphere[t].1 + LEAN_SLACK_DMAX * dmax;
+    lean_lower_bound_of(x, &tris.pos[t], tris.slope[t], &tris.lean[t], tris.sphere[t].1, dmax)
+}
+
+/// [`lean_lower_bound`] of a triangle given by its corners, its [`TriBounds`]' slope and lean
+/// and its bounding sphere's radius.
+#[inline]
+pub fn lean_lower_bound_of(x: DVec3, p: &[DVec3; 3], slope: (DVec3, f64, f64), l: &Lean, size: f64, dmax: f64) -> f64 {
+    let (n, n_hi, _) = slope;
+    let slack = LEAN_SLACK_SIZE * size + LEAN_SLACK_DMAX * dmax;
     let h = (x - p[0]).dot(n);
     let r = [(x - p[1]).dot(l.out[0]) - slack, (x - p[2]).dot(l.out[1]) - slack, (x - p[0]).dot(l.out[2]) - slack];
     let signed = l.n_lo > LEAN_SIDE_MIN;
@@ -391,6 +403,9 @@ pub struct Scratch {
     point_faces: Vec<u32>,
     point_tris: Tris,
     point_near: Vec<(u32, FaceInfo)>,
+    /// What a [`super::MapContext`] keeps between its point searches on this scratch
+    /// ([`Scratch::take_context_memo`]); its type is the context's.
+    context_memo: Option<Box<dyn std::any::Any + Send + Sync>>,
     /// What the continuity walks using this scratch did (counted as they run).
     pub work: PointWork,
 }
@@ -458,6 +473,16 @@ impl Scratch {
     }
     pub fn keep_point_buffers(&mut self, b: PointBuffers) {
         (self.point_faces, self.point_tris, self.point_near) = (b.faces, b.tris, b.near);
+    }
+    /// What a context kept between its point searches on this scratch (a fresh `T` the first
+    /// time, or where another type was kept), handed back with [`Scratch::keep_context_memo`].
+    /// A context that keeps anything derived from its state must not share a scratch with
+    /// another state.
+    pub fn take_context_memo<T: Default + Send + Sync + 'static>(&mut self) -> Box<T> {
+        self.context_memo.take().and_then(|m| m.downcast().ok()).unwrap_or_default()
+    }
+    pub fn keep_context_memo<T: Send + Sync + 'static>(&mut self, memo: Box<T>) {
+        self.context_memo = Some(memo);
     }
     /// Records in the read record ([`Scratch::take_reads`]) the faces of `tris` whose sphere
     /// bound from `x` is within `reach`, and returns how many there were (0: a search of `tris`

@@ -169,7 +169,7 @@ pub fn bake(dense: &DenseData, topo: &Topology, base: &Base, maps: &[Option<Map>
         })
     };
     let bvh = Bvh::build(&dense.pos, &dense.faces);
-    let base_bvh = Bvh::build(&base.positions, &base.faces);
+    let base_index = crate::validate::BaseIndex::new(base);
     let texels: Vec<(f32, [f32; 3], u8)> = (0..n * n)
         .into_par_iter()
         .map_init(|| std::cell::RefCell::new((Vec::new(), crate::guarantee::Scratch::default(), Vec::new(), crate::guarantee::Tris::default())), |scratch, i| {
@@ -200,7 +200,7 @@ pub fn bake(dense: &DenseData, topo: &Topology, base: &Base, maps: &[Option<Map>
             hits.retain(|h| dense.normal[h.1 as usize].dot(dir) > 0.0);
             hits.sort_by(|a, b| a.0.abs().total_cmp(&b.0.abs()).then(a.1.cmp(&b.1)));
             let own = hits.iter().copied().find(|&(t, df)| {
-                let m = crate::validate::primary_global(base, &base_bvh, x + t * dir, &[dense.normal[df as usize]], mode, dmax, true, scratch, near, tris);
+                let m = crate::validate::primary_global(&base_index, x + t * dir, &[dense.normal[df as usize]], mode, dmax, true, scratch, near, tris);
                 m.is_some_and(|m| {
                     let c = base.faces[m.face as usize].map(|v| base.positions[v as usize]);
                     interpolate_direction(&c, &m.bary).distance(x) <= BACK_PROJECTION_TOLERANCE * dmax

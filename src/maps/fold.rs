@@ -13,7 +13,6 @@
 //! separates the two triangles of a cell, so that a bilinear lookup inside a chart never reads
 //! another chart's texels (the displacement map fills gutters from its own chart).
 
-use crate::geometry::bvh::Bvh;
 use crate::guarantee::{Map, NormalMode, Scratch, Tris};
 use crate::geometry::{barycentric, interpolate_direction};
 use crate::mesh::DenseData;
@@ -195,9 +194,9 @@ pub fn fold_image(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: No
 /// lowest dense face covering each texel.
 #[allow(clippy::too_many_arguments)]
 fn paint(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: NormalMode, dmax: f64, atlas: &Atlas, acc: &[AtomicU32], owner: Option<&[[AtomicU32; 2]]>) {
-    let bvh = Bvh::build(&base.positions, &base.faces);
+    let index = crate::validate::BaseIndex::new(base);
     let (fan_start, fan) = crate::mesh::vertex_faces(base.positions.len(), &base.faces);
-    let painter = Painter { atlas, base, bvh: &bvh, fan_start: &fan_start, fan: &fan, mode, dmax, acc, owner };
+    let painter = Painter { atlas, base, index: &index, fan_start: &fan_start, fan: &fan, mode, dmax, acc, owner };
     (0..dense.faces.len()).into_par_iter().for_each_init(
         || (Scratch::default(), Vec::new(), Tris::default()),
         |(scratch, near, tris), df| {
@@ -229,7 +228,7 @@ pub fn cover_owners(dense: &DenseData, base: &Base, maps: &[Option<Map>], mode: 
 struct Painter<'a> {
     atlas: &'a Atlas,
     base: &'a Base,
-    bvh: &'a Bvh,
+    index: &'a crate::validate::BaseIndex<'a>,
     /// The base faces around each base vertex v: `fan[fan_start[v]..fan_start[v + 1]]`.
     fan_start: &'a [u32],
     fan: &'a [u32],
@@ -299,7 +298,7 @@ impl Painter<'_> {
         if depth > 0 {
             let mid = [0.5 * (p[0] + p[1]), 0.5 * (p[1] + p[2]), 0.5 * (p[2] + p[0])];
             let solve = |x, scratch: &mut Scratch, near: &mut Vec<(f64, u32)>, tris: &mut Tris| {
-                crate::validate::primary_global(self.base, self.bvh, x, &[normal], self.mode, self.dmax, true, scratch, near, tris)
+                crate::validate::primary_global(self.index, x, &[normal], self.mode, self.dmax, true, scratch, near, tris)
             };
             if let (Some(a), Some(b), Some(c)) =
                 (solve(mid[0], scratch, near, tris), solve(mid[1], scratch, near, tris), solve(mid[2], scratch, near, tris))

@@ -6,7 +6,7 @@
 //! BVH node's box, then to the triangle), so a vertex costs a handful of cubic solves.
 
 use crate::geometry::bvh::Bvh;
-use crate::guarantee::{check_face, find_primary, solve_tri, direction_at, CheckScratch, CheckStats, FaceCheck, FaceInfo, Found, Map, MapContext, NormalMode, preferred, Scratch, Tris, SAME_SOLUTION_REL};
+use crate::guarantee::{TriBounds, lean_lower_bound_of, shell_lower_bound_of, check_face, find_primary, solve_tri, direction_at, CheckScratch, CheckStats, FaceCheck, FaceInfo, Found, Map, MapContext, NormalMode, preferred, Scratch, Tris, SAME_SOLUTION_REL};
 use crate::mesh::{vertex_faces, DenseData};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -67,23 +67,46 @@ pub struct Verdict {
     pub checks: CheckStats,
 }
 
+/// A base mesh ready for point searches over the whole of it: its BVH and every face's search
+/// bounds, derived once. Why the bounds: a search derived them for each face it met, again at
+/// every point (a seventh of `validate`'s time on a 34,725-face base); kept, they cost 200 bytes
+/// a base face.
+pub struct BaseIndex<'a> {
+    pub base: &'a Base,
+    pub bvh: Bvh,
+    bounds: Vec<TriBounds>,
+}
+
+impl<'a> BaseIndex<'a> {
+    pub fn new(base: &'a Base) -> BaseIndex<'a> {
+        let bvh = Bvh::build(&base.positions, &base.faces);
+        let bounds = base
+            .faces
+            .par_iter()
+            .map(|t| TriBounds::new(&t.map(|v| base.positions[v as usize]), &t.map(|v| base.directions[v as usize])))
+            .collect();
+        BaseIndex { base, bvh, bounds }
+    }
+}
+
 /// Candidate triangles for one point: the exact search set of a best-first query, as [`Tris`].
-fn candidate_tris(base: &Base, bvh: &Bvh, x: DVec3, limit: f64, near: &mut Vec<(f64, u32)>, tris: &mut Tris) {
-    bvh.near(&base.positions, &base.faces, x, limit, near);
+fn candidate_tris(index: &BaseIndex, x: DVec3, limit: f64, near: &mut Vec<(f64, u32)>, tris: &mut Tris) {
+    let base = index.base;
+    index.bvh.near(&base.positions, &base.faces, x, limit, near);
     tris.clear();
     for &(_, f) in near.iter() {
         let t = base.faces[f as usize];
-        tris.push(f, t, t.map(|v| base.positions[v as usize]), t.map(|v| base.directions[v as usize]));
+        tris.push_with(f, t, t.map(|v| base.positions[v as usize]), t.map(|v| base.directions[v as usize]), &index.bounds[f as usize]);
     }
     tris.finish();
 }
 
 struct ValidateContext<'a> {
     base: &'a Base,
+    index: &'a BaseIndex<'a>,
     /// Faces around each base vertex (CSR).
     vf_start: Vec<u32>,
     vf: Vec<u32>,
-    bvh: &'a Bvh,
     maps: &'a [Option<Map>],
     pinched: &'a [bool],
     mode: NormalMode,
@@ -101,8 +124,7 @@ const FIRST_RADIUS: f64 = 1.0 / 64.0;
 /// triangle within distance L.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn primary_global(
-    base: &Base,
-    bvh: &Bvh,
+    index: &BaseIndex,
     x: DVec3,
     normals: &[DVec3],
     mode: NormalMode,
@@ -115,7 +137,7 @@ pub(crate) fn primary_global(
     let mut radius = FIRST_RADIUS * dmax;
     loop {
         let r = radius.min(dmax);
-        candidate_tris(base, bvh, x, r, near, tris);
+        candidate_tris(index, x, r, near, tris);
         if let Found::Hit(t, h) = find_primary(x, normals, tris, mode, dmax, check4, false, scratch) {
             if h.d.abs() <= r || r >= dmax {
                 return Some(Map { face: tris.ids[t], bary: h.bary, d: h.d });
@@ -133,9 +155,12 @@ impl ValidateContext<'_> {
         if let Some(all) = self.all {
             return primary_exhaustive(all, x, normals, self.mode, self.dmax, true);
         }
-        let mut near = Vec::new();
-        let mut tris = Tris::default();
-        primary_global(self.base, self.bvh, x, normals, self.mode, self.dmax, true, scratch, &mut near, &mut tris)
+        // The search's buffers, kept on the scratch between points (a bisection solves many).
+        let mut memo: Box<(Vec<(f64, u32)>, Tris)> = scratch.take_context_memo();
+        let (near, tris) = &mut *memo;
+        let m = primary_global(self.index, x, normals, self.mode, self.dmax, true, scratch, near, tris);
+        scratch.keep_context_memo(memo);
+        m
     }
 }
 
@@ -211,18 +236,43 @@ impl MapContext for ValidateContext<'_> {
 
 /// Second solutions of a mapped vertex: (ambiguous, far hit).
 fn second_solutions(
-    base: &Base,
-    bvh: &Bvh,
+    index: &BaseIndex,
+    all: Option<&Tris>,
     faces_touch: impl Fn(u32, u32) -> bool,
     x: DVec3,
     normals: &[DVec3],
     primary: Map,
     mode: NormalMode,
     dmax: f64,
-    near: &mut Vec<(f64, u32)>,
     tris: &mut Tris,
 ) -> (bool, bool) {
-    candidate_tris(base, bvh, x, dmax, near, tris);
+    let base = index.base;
+    // Every triangle that can hold a solution within dmax (`--exhaustive`: every triangle of
+    // the base, to cross-check this): within dmax of x, and not put beyond it by its bounds
+    // (the strict search's culls, at its reach). Within dmax of a point of a fine base lie
+    // thousands of faces, nearly all culled here before a distance or a cubic; the order does
+    // not matter (two flags).
+    let tris: &Tris = match all {
+        Some(all) => all,
+        None => {
+            tris.clear();
+            index.bvh.visit_within(x, dmax, |f| {
+                let b = &index.bounds[f as usize];
+                let t = base.faces[f as usize];
+                let pos = t.map(|v| base.positions[v as usize]);
+                if crate::geometry::sphere_lower_bound(x, b.sphere.0, b.sphere.1) > dmax
+                    || (mode == NormalMode::Interpolated && lean_lower_bound_of(x, &pos, b.slope, &b.lean, b.sphere.1, dmax) > dmax)
+                    || crate::geometry::triangle_distance(x, &pos) > dmax
+                    || shell_lower_bound_of(x, &pos, b.slope, b.sphere.1, mode) > dmax
+                {
+                    return;
+                }
+                tris.push_with(f, t, pos, t.map(|v| base.directions[v as usize]), b);
+            });
+            tris.finish();
+            tris
+        }
+    };
     let p0 = {
         let t = base.faces[primary.face as usize].map(|v| base.positions[v as usize]);
         crate::geometry::interpolate_direction(&t, &primary.bary)
@@ -272,7 +322,7 @@ impl CheckOptions {
 /// A device that can project every dense vertex onto a base (the GPU); the validator knows it
 /// only through this trait.
 pub trait Project {
-    fn project(&self, dense: &DenseData, base: &Base, bvh: &Bvh, mode: NormalMode, dmax: f64) -> Result<Vec<Option<Map>>, crate::error::GpuError>;
+    fn project(&self, dense: &DenseData, index: &BaseIndex, mode: NormalMode, dmax: f64) -> Result<Vec<Option<Map>>, crate::error::GpuError>;
 }
 
 /// Judges `base` against the dense mesh over the whole base mesh.
@@ -290,7 +340,7 @@ pub fn validate_with_maps(dense: &DenseData, base: &Base, opts: &CheckOptions) -
 }
 
 /// The primary solution of every dense vertex over the whole base, on the CPU.
-fn project_cpu(dense: &DenseData, base: &Base, bvh: &Bvh, all: Option<&Tris>, mode: NormalMode, dmax: f64) -> Vec<Option<Map>> {
+fn project_cpu(dense: &DenseData, index: &BaseIndex, all: Option<&Tris>, mode: NormalMode, dmax: f64) -> Vec<Option<Map>> {
     (0..dense.pos.len() as u32)
         .into_par_iter()
         .map_init(
@@ -301,7 +351,7 @@ fn project_cpu(dense: &DenseData, base: &Base, bvh: &Bvh, all: Option<&Tris>, mo
                 let pinched = dense.pinched[v as usize];
                 match all {
                     Some(all) => primary_exhaustive(all, x, normals, mode, dmax, !pinched),
-                    None => primary_global(base, bvh, x, normals, mode, dmax, !pinched, scratch, near, tris),
+                    None => primary_global(index, x, normals, mode, dmax, !pinched, scratch, near, tris),
                 }
             },
         )
@@ -330,15 +380,15 @@ pub fn validate_on(
         (dense, 0)
     };
     let second = opts.second || strict;
-    let bvh = Bvh::build(&base.positions, &base.faces);
+    let index = BaseIndex::new(base);
     let all_owned = opts.exhaustive.then(|| all_tris(base));
     let all = all_owned.as_ref();
     let maps: Vec<Option<Map>> = match gpu {
-        Some(g) if all.is_none() => g.project(dense, base, &bvh, mode, dmax)?,
-        _ => project_cpu(dense, base, &bvh, all, mode, dmax),
+        Some(g) if all.is_none() => g.project(dense, &index, mode, dmax)?,
+        _ => project_cpu(dense, &index, all, mode, dmax),
     };
     let (vf_start, vf) = vertex_faces(base.positions.len(), &base.faces);
-    let ctx = ValidateContext { base, vf_start, vf, bvh: &bvh, maps: &maps, pinched: &dense.pinched, mode, dmax, all };
+    let ctx = ValidateContext { base, index: &index, vf_start, vf, maps: &maps, pinched: &dense.pinched, mode, dmax, all };
     let results: Vec<(u32, FaceCheck, CheckStats)> = (0..dense.faces.len() as u32)
         .into_par_iter()
         .map_init(CheckScratch::default, |sc, f| {
@@ -374,11 +424,11 @@ pub fn validate_on(
         let flags: Vec<(bool, bool)> = (0..dense.pos.len() as u32)
             .into_par_iter()
             .map_init(
-                || (Vec::new(), Vec::new(), Tris::default()),
-                |(normals, near, tris), v| match maps[v as usize] {
+                || (Vec::new(), Tris::default()),
+                |(normals, tris), v| match maps[v as usize] {
                     Some(m) if !dense.pinched[v as usize] => {
                         dense.vertex_normals(v, normals);
-                        second_solutions(base, &bvh, touch, dense.pos[v as usize], normals, m, mode, dmax, near, tris)
+                        second_solutions(&index, all, touch, dense.pos[v as usize], normals, m, mode, dmax, tris)
                     }
                     _ => (false, false),
                 },
