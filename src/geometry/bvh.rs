@@ -106,27 +106,12 @@ impl Bvh {
     /// Triangles whose distance to `x` is at most `limit`, ascending by (distance, index).
     pub fn near(&self, pos: &[DVec3], faces: &[[u32; 3]], x: DVec3, limit: f64, out: &mut Vec<(f64, u32)>) {
         out.clear();
-        if self.nodes.is_empty() {
-            return;
-        }
-        let mut stack = vec![0u32];
-        while let Some(n) = stack.pop() {
-            let node = self.nodes[n as usize];
-            if x.clamp(node.lo, node.hi).distance(x) > limit {
-                continue;
+        self.visit_within(x, limit, |f| {
+            let d = triangle_distance(x, &tri(pos, faces, f));
+            if d <= limit {
+                out.push((d, f));
             }
-            if node.count > 0 {
-                for &f in self.leaf(&node) {
-                    let d = triangle_distance(x, &tri(pos, faces, f));
-                    if d <= limit {
-                        out.push((d, f));
-                    }
-                }
-            } else {
-                stack.push(node.a);
-                stack.push(node.b);
-            }
-        }
+        });
         out.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     }
 
