@@ -102,7 +102,7 @@ fn candidate_tris(index: &BaseIndex, x: DVec3, limit: f64, near: &mut Vec<(f64, 
 }
 
 struct ValidateContext<'a> {
-    base: &'a Base,
+    /// The base (`index.base`), its BVH and its faces' bounds.
     index: &'a BaseIndex<'a>,
     /// Faces around each base vertex (CSR).
     vf_start: Vec<u32>,
@@ -204,11 +204,11 @@ impl MapContext for ValidateContext<'_> {
         self.maps[v as usize]
     }
     fn face_info(&self, face: u32) -> FaceInfo {
-        let verts = self.base.faces[face as usize];
+        let verts = self.index.base.faces[face as usize];
         FaceInfo {
             verts,
-            pos: verts.map(|v| self.base.positions[v as usize]),
-            dir: verts.map(|v| self.base.directions[v as usize]),
+            pos: verts.map(|v| self.index.base.positions[v as usize]),
+            dir: verts.map(|v| self.index.base.directions[v as usize]),
         }
     }
     fn face_containing(&self, verts: &[u32]) -> Option<u32> {
@@ -216,7 +216,7 @@ impl MapContext for ValidateContext<'_> {
         self.vf[self.vf_start[v] as usize..self.vf_start[v + 1] as usize]
             .iter()
             .copied()
-            .find(|&f| verts.iter().all(|w| self.base.faces[f as usize].contains(w)))
+            .find(|&f| verts.iter().all(|w| self.index.base.faces[f as usize].contains(w)))
     }
     fn faces_around(&self, v: u32, out: &mut Vec<u32>) {
         out.clear();
@@ -388,7 +388,7 @@ pub fn validate_on(
         _ => project_cpu(dense, &index, all, mode, dmax),
     };
     let (vf_start, vf) = vertex_faces(base.positions.len(), &base.faces);
-    let ctx = ValidateContext { base, index: &index, vf_start, vf, maps: &maps, pinched: &dense.pinched, mode, dmax, all };
+    let ctx = ValidateContext { index: &index, vf_start, vf, maps: &maps, pinched: &dense.pinched, mode, dmax, all };
     let results: Vec<(u32, FaceCheck, CheckStats)> = (0..dense.faces.len() as u32)
         .into_par_iter()
         .map_init(CheckScratch::default, |sc, f| {
