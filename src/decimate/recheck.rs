@@ -138,7 +138,7 @@ struct PointMemo {
     key: Option<(u32, u32)>,
     tris: Tris,
     rings: Vec<(u32, Vec<u32>)>,
-    bounds: Vec<(u32, Option<crate::guarantee::TriBounds>)>,
+    bounds: Vec<Option<(u32, crate::guarantee::TriBounds)>>,
     both: Vec<u32>,
 }
 
@@ -160,14 +160,14 @@ impl PointMemo {
     /// into it.
     fn bounds(&mut self, st: &State, f: u32) -> crate::guarantee::TriBounds {
         if self.bounds.is_empty() {
-            self.bounds = vec![(INVALID, None); POINT_MEMO_SLOTS];
+            self.bounds = vec![None; POINT_MEMO_SLOTS];
         }
         let slot = &mut self.bounds[f as usize % POINT_MEMO_SLOTS];
-        match slot {
-            (g, Some(b)) if *g == f => *b,
+        match *slot {
+            Some((g, b)) if g == f => b,
             _ => {
                 let b = st.bounds_of(f);
-                *slot = (f, Some(b));
+                *slot = Some((f, b));
                 b
             }
         }
