@@ -57,9 +57,9 @@ fn assert_near(name: &str, faces: u64, readme: u64) {
 
 /// The report's `collapses.levels`: one entry per halving of the base, from the scan's face
 /// count down, each level's distinct dense triangles at most the scan's, and the tests of the
-/// 2-ring checking each one again and again — README, Benchmark: the bunny 12.9 times per
-/// halving over the run (11.4–16.8 by level), the horse 13.1 (2.5 in its last, partial
-/// halving, 12.2–17.5 in the others): `expected`, asserted within 10 %.
+/// 2-ring checking each one again and again — README, Benchmark: the bunny 13.1 times per
+/// halving over the run (11.4–16.9 by level), the horse 13.2 (8.1 in its last, partial
+/// halving, 12.2–17.3 in the others): `expected`, asserted within 10 %.
 fn assert_rechecks(name: &str, r: &Value, expected: f64) {
     let levels = r["collapses"]["levels"].as_array().unwrap();
     let faces_in = r["faces_in"].as_u64().unwrap();
@@ -80,8 +80,8 @@ fn assert_rechecks(name: &str, r: &Value, expected: f64) {
 }
 
 /// README's results table (`bash scripts/results.sh`).
-const BUNNY_FACES: u64 = 145;
-const HORSE_FACES: u64 = 366;
+const BUNNY_FACES: u64 = 143;
+const HORSE_FACES: u64 = 308;
 
 /// The base OBJ: `v`, one `vn` per `v`, `f v//vn`; a manifold with the given genus and loops.
 fn assert_base_obj(bytes: &[u8], faces: u64, genus: i64, loops: u64) {
@@ -116,7 +116,7 @@ fn bunny_reaches_the_paper_and_carries_the_scan() {
     assert_carries(&r);
     // Candidates of one round that read what an earlier commit changed were deferred.
     assert!(r["collapses"]["deferred"].as_u64().unwrap() > 0, "{}", r["collapses"]);
-    assert_rechecks("bunny", &r, 12.9);
+    assert_rechecks("bunny", &r, 13.1);
     assert_eq!(r["genus"], 0);
     assert_eq!(r["boundary_loops_in"], 5);
     assert_eq!(r["boundary_loops_out"], 5);
@@ -152,7 +152,7 @@ fn strict_and_constant_modes_on_the_sample() {
     assert_eq!(r["global"]["strict"], true);
     assert_eq!(r["global"]["ambiguous"], 0, "{}", r["global"]);
     let fs = r["faces_out"].as_u64().unwrap();
-    assert_near("sample --strict", fs, 504);
+    assert_near("sample --strict", fs, 516);
     assert_base_obj(&obj, fs, 0, 1);
     let (r, _, _) = decimate(&scan, &dir, "c", &["--normals", "constant"]);
     assert_eq!(r["normals"], "constant");
@@ -161,14 +161,15 @@ fn strict_and_constant_modes_on_the_sample() {
     let g = &r["global"];
     assert_eq!(g["pinched"], 63, "exempt like pinched vertices: {g}");
     assert_eq!(g["exempt_edges"], 99, "{g}");
-    // 3,598 (3,590 before jumps at folds counted); 2,224 when a walk leaving one face's prism
+    // 3,582 (3,594 before the triangles near a region were judged whole, 3,598 before the
+    // closed-form crossing, 3,590 before jumps at folds counted); 2,224 when a walk leaving one face's prism
     // was taken to enter the next at the same point (crossings count only where the two prisms
     // meet, at d = 0).
-    assert_near("sample --normals constant", r["faces_out"].as_u64().unwrap(), 3594);
+    assert_near("sample --normals constant", r["faces_out"].as_u64().unwrap(), 3582);
 }
 
 /// The same modes on the bunny (opt-in: ~25 min here): strict verified globally (README,
-/// Modes: 365 faces); constant mode valid (exit 0: the re-check agrees with the global check
+/// Modes: 387 faces); constant mode valid (exit 0: the re-check agrees with the global check
 /// since near-ties of |d| go by the exact value) with only what the scan itself cannot map
 /// exempt — its 13 vertices and 20 edges — at README's 38,648 faces.
 #[test]
@@ -181,7 +182,7 @@ fn bunny_strict_and_constant_modes() {
     assert_eq!(r["global"]["strict"], true);
     assert_eq!(r["global"]["ambiguous"], 0, "{}", r["global"]);
     let fs = r["faces_out"].as_u64().unwrap();
-    assert_near("bunny --strict", fs, 365);
+    assert_near("bunny --strict", fs, 387);
     assert_base_obj(&obj, fs, 0, 5);
     let (r, _, _) = decimate(&bunny, &dir, "c", &["--normals", "constant"]);
     assert_carries(&r);
@@ -201,12 +202,12 @@ fn horse_reaches_the_paper_and_carries_the_scan() {
     assert!(faces <= 502, "horse: {faces} faces, the paper reached 502");
     assert_near("horse", faces, HORSE_FACES);
     assert_carries(&r);
-    assert_rechecks("horse", &r, 13.1);
+    assert_rechecks("horse", &r, 13.2);
     assert_base_obj(&obj, faces, 0, 0);
 
     // The fold image of the valid base: the scan covers each base face about once. Measured on
-    // the 366-face base: 2,938 folded texels, the most covered face 1.047 (the 308-face base of
-    // the release before: 3,063 and 1.047; the 326-face base before it: 3,613 and 1.123; before pieces that straddle two faces were unfolded
+    // the 308-face base: 2,923 folded texels, the most covered face 1.032 (the 366-face base of
+    // the release before: 2,938 and 1.047; the 308-face base of 97acdbb: 3,063 and 1.047; the 326-face base before it: 3,613 and 1.123; before pieces that straddle two faces were unfolded
     // into each face's chart: 14,330 and 2.24, slivers drawn over); the least 0.0, the 4 faces
     // around the 1 pinched vertex, whose triangles are not drawn. Bounds: 10 % and 0.03 above.
     let (json, png) = (dir.join("hv.json"), dir.join("hv.png"));
@@ -226,19 +227,35 @@ fn horse_reaches_the_paper_and_carries_the_scan() {
     assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
     let v: Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     let cov = &v["coverage"];
-    assert!(cov["folded_texels"].as_u64().unwrap() <= 3_232, "{cov}");
-    assert!(cov["max"].as_f64().unwrap() <= 1.077, "{cov}");
+    assert!(cov["folded_texels"].as_u64().unwrap() <= 3_215, "{cov}");
+    assert!(cov["max"].as_f64().unwrap() <= 1.062, "{cov}");
     let pinched_holes = cov["per_face"].as_array().unwrap().iter().filter(|c| c.as_f64().unwrap() < 0.5).count();
     assert_eq!(pinched_holes, 4, "{cov}");
 }
 
+/// `--target-faces 5000` on `scan` stops there (a collapse removes one or two faces), with
+/// both final checks passing and the topology kept (genus 0, `loops` boundary loops).
+fn stops_at_5000_faces_and_carries(scan: &str, loops: u64) {
+    let Some(input) = real_scan(scan) else { return };
+    let dir = tempdir(&format!("{scan}-target"));
+    let (r, obj, _) = decimate(&input, &dir, "t", &["--target-faces", "5000"]);
+    let faces = r["faces_out"].as_u64().unwrap();
+    assert!((4998..=5000).contains(&faces), "{scan}: {faces}");
+    assert_carries(&r);
+    assert_base_obj(&obj, faces, 0, loops);
+}
+
 #[test]
 fn target_faces_stops_there() {
-    let Some(bunny) = real_scan("bunny.ply.gz") else { return };
-    let dir = tempdir("bunny-target");
-    let (r, obj, _) = decimate(&bunny, &dir, "t", &["--target-faces", "5000"]);
-    let faces = r["faces_out"].as_u64().unwrap();
-    assert!((4998..=5000).contains(&faces), "{faces}");
-    assert_carries(&r);
-    assert_base_obj(&obj, faces, 0, 5);
+    stops_at_5000_faces_and_carries("bunny.ply.gz", 5);
+}
+
+/// The horse stopped at 5,000 faces passes its final checks (exit 0, the re-check and the global
+/// check valid). Until 2026-12-07 it ended with both checks finding dense triangle 25804 flipped
+/// (exit 1): a vertex on a base vertex kept a face label that no test moved (the search asking
+/// whether its primary moves onto a region ran over a range of |d| = 0), and the decimator's
+/// loop through it had one sample more than the checks' — README, The exact guarantee.
+#[test]
+fn the_horse_stopped_at_5000_faces_passes_its_final_checks() {
+    stops_at_5000_faces_and_carries("horse.ply.gz", 0);
 }

@@ -194,8 +194,9 @@ fn report(name: &str, p: &Parity, band_measured: f64, min_decided: u64) {
 }
 
 /// Band shares measured on this machine (lavapipe), `cargo test --release --test shell_kernels
-/// parity -- --nocapture` (2026-12-06: 13.8 % interpolated, 90.1 % strict, 61.3 % constant).
-const INTERP_BAND: f64 = 0.138;
+/// -- parity --nocapture` (2026-12-07: 10.2 % interpolated, 88.7 % strict, 61.3 % constant; the
+/// release before, whose runs took another order of collapses: 13.8 %, 90.1 %, 61.3 %).
+const INTERP_BAND: f64 = 0.102;
 /// Constant mode at 45,000 faces: 61.3 % in the band, nearly all ties (a dense vertex on a base
 /// edge or vertex at d = 0, found by every face around it).
 const CONST_BAND: f64 = 0.614;
@@ -224,7 +225,7 @@ fn parity_strict_and_constant_bunny() {
     let constant = Options { normals: NormalMode::Constant, ..Options::default() };
     parity_runs(
         "bunny.ply.gz",
-        &[("strict", Options { strict: true, ..Options::default() }, &[30_000], 0.901, 500), ("constant", constant, &[45_000], CONST_BAND, 1000)],
+        &[("strict", Options { strict: true, ..Options::default() }, &[30_000], 0.887, 500), ("constant", constant, &[45_000], CONST_BAND, 1000)],
     );
 }
 
@@ -244,10 +245,10 @@ fn parity_every_mode_horse() {
     );
 }
 
-/// The horse's band shares, measured as the bunny's (lavapipe, 2026-12-06: 8.0 % interpolated,
-/// 91.3 % strict, 47.7 % constant; 0 disagreements in each).
-const HORSE_INTERP_BAND: f64 = 0.080;
-const HORSE_STRICT_BAND: f64 = 0.913;
+/// The horse's band shares, measured as the bunny's (lavapipe, 2026-12-07: 9.1 % interpolated,
+/// 89.2 % strict, 47.7 % constant; 0 disagreements in each; 2026-12-06: 8.0 %, 91.3 %, 47.7 %).
+const HORSE_INTERP_BAND: f64 = 0.091;
+const HORSE_STRICT_BAND: f64 = 0.892;
 const HORSE_CONST_BAND: f64 = 0.477;
 
 /// The validator's projection: every dense vertex of the bunny against a meshoptimizer base

@@ -9,8 +9,13 @@
 //! - those associated with the *region* (faces around u, w and their ring, whose direction
 //!   field changes), solved over region ∪ border, and against faces outside when those could
 //!   hold a smaller |d| ([`Snapshot::far_primaries`]);
-//! - any other vertex whose distance to a changed triangle is below its |d|: only those can
+//! - any other vertex whose distance to a changed triangle is at most its |d|: only those can
 //!   gain a solution there ([`Snapshot::moved_primaries`]).
+//!
+//! Which dense triangles are checked (orientation and continuity): those around all of these,
+//! and those around every vertex whose map stays but whose edges pass near the region as it is
+//! after the collapse or as it was before (a point of such an edge may reach onto the new
+//! faces, or have its image on a reshaped face, which moves it in the loop's chart).
 
 use crate::decimate::{Candidate, NearRule, Snapshot};
 use crate::guarantee::chunks::{chunk_count, flat_map_chunks, run_to_first_failure};
@@ -187,7 +192,7 @@ impl Snapshot {
             return Some(cur);
         }
         let spheres = (self.near == NearRule::Triangles).then(|| RegionSpheres::new(&tris.pos[..n_region], &tris.sphere[..n_region]));
-        if self.region_distance(v, x, cur.d.abs(), Snapshot::region_box(tris, n_region), spheres.as_ref()) >= cur.d.abs() {
+        if self.region_distance(v, x, cur.d.abs(), Snapshot::region_box(tris, n_region), spheres.as_ref()) > cur.d.abs() {
             return Some(cur);
         }
         Some(self.moved_onto(v, &normals, &region_tris(tris, n_region), scratch).unwrap_or(cur))
@@ -286,41 +291,28 @@ impl Snapshot {
     pub(crate) fn check_placement(&self, c: &Candidate, p: DVec3, new_dirs: Vec<(u32, DVec3)>, tris: &Tris, reached: Reached, first: &mut Vec<FailAt>) -> Result<Accepted, Reject> {
         let dense = &self.dense;
         let Reached { maps, extras, near, read_faces } = reached;
-        // Whole triangles around every vertex whose map changes; only the edges of the vertices
-        // whose maps stay but whose edges pass near the region (their images can change only by
-        // reaching onto it, which continuity sees).
-        let faces = if extras.is_empty() {
-            c.dense_faces.clone()
-        } else {
+        // Whole triangles around every vertex whose map changes, and around every vertex whose
+        // map stays but whose edges pass near the region: a point of such an edge can reach
+        // onto the region (continuity), and where its image lies on a region face the face's
+        // new shape moves it in the loop's chart, so the triangle's orientation is judged again
+        // too (with the edges alone, a loop over a reshaped face went unjudged: a 314-face
+        // horse base that the final check found flipped at dense triangle 25804).
+        let near_faces = {
             let mut more = Vec::new();
             let outside = |f: &u32| c.dense_faces.binary_search(f).is_err();
-            sorted_unique(extras.iter().flat_map(|&(v, _)| dense.faces_of(v).iter().copied()).filter(outside), &mut more);
-            merge_sorted(&c.dense_faces, &more)
+            sorted_unique(extras.iter().map(|e| e.0).chain(near.iter().copied()).flat_map(|v| dense.faces_of(v).iter().copied()).filter(outside), &mut more);
+            more
         };
-        let mut edges: Vec<(u32, u32)> = Vec::new();
-        for &v in &near {
-            for &f in dense.faces_of(v) {
-                if faces.binary_search(&f).is_ok() {
-                    continue;
-                }
-                for w in dense.faces[f as usize] {
-                    if w != v {
-                        edges.push((v.min(w), v.max(w)));
-                    }
-                }
-            }
-        }
-        edges.sort_unstable();
-        edges.dedup();
+        let faces = merge_sorted(&c.dense_faces, &near_faces);
         // Where each of the candidate's dense vertices sits (its map is asked for at every
         // edge the check walks); built per check, so that only the candidates being checked
         // hold one.
         let mut index = IdIndex::default();
         index.build(&c.dense);
         let ctx = CandidateContext { st: self, c, tris, faces: &faces, outer: std::sync::OnceLock::new(), maps: CheckMaps::Region { index, maps: &maps, extras: &extras } };
-        self.clock.items(faces.len(), edges.len());
+        self.clock.items(faces.len(), near_faces.len());
         let mut out = CheckOut { reads: read_faces, ..Default::default() };
-        let r = check_faces(&ctx, dense, &faces, &edges, self.fail_hints.then_some(&first[..]), &mut out);
+        let r = check_faces(&ctx, dense, &faces, self.fail_hints.then_some(&first[..]), &mut out);
         self.clock.add(Stage::Continuity, out.continuity_ns);
         self.clock.add(Stage::Orientation, out.orientation_ns);
         self.clock.work(&out.work);
@@ -342,7 +334,7 @@ impl Snapshot {
         sorted_unique(reads, &mut read_faces);
         let mut read_vertices = Vec::new();
         let corners = faces.iter().flat_map(|&f| dense.faces[f as usize]);
-        sorted_unique(corners.chain(edges.iter().flat_map(|e| [e.0, e.1])).chain(near.iter().copied()), &mut read_vertices);
+        sorted_unique(corners.chain(near.iter().copied()), &mut read_vertices);
         Ok(Accepted { placement: 0, position: p, new_dirs, maps, extras, read_faces, read_vertices, test_s: 0.0 })
     }
 
@@ -555,7 +547,8 @@ impl Snapshot {
     /// its current |d| (|x − X| ≤ |d|·|N| ≤ |d|), so the grid finds every candidate. Returns
     /// their new maps, ascending by vertex, and the other vertices near enough that a point of
     /// one of their edges (within half the vertex's longest edge) may gain a smaller solution on
-    /// the region: their edges are tested too.
+    /// the region, or may have its image on a region face as it was before the collapse (the
+    /// image moves with the face): their triangles are tested too.
     fn moved_primaries(&self, c: &Candidate, tris: &Tris, n_region: usize, scratch: &mut Scratch) -> (Vec<(u32, Map)>, Vec<u32>) {
         let reach = self.max_abs_d + self.edge_reach_max;
         if self.max_abs_d <= 0.0 || n_region == 0 {
@@ -565,17 +558,27 @@ impl Snapshot {
         let mut cand = Vec::new();
         let mut near = Vec::new();
         let spheres = (self.near == NearRule::Triangles).then(|| RegionSpheres::new(&tris.pos[..n_region], &tris.sphere[..n_region]));
+        // The region as it is before the collapse: a point of an edge whose image lies on one
+        // of its faces moves with that face's new shape, however far the new faces lie.
+        let old_pos: Vec<[DVec3; 3]> = c.region.iter().map(|&f| self.face_info_current(f).pos).collect();
+        let old_sphere: Vec<(DVec3, f64)> = old_pos.iter().map(crate::geometry::triangle_sphere).collect();
+        // (The box holds both: the box rule measures from it.)
+        let old_box = old_pos.iter().flatten().fold((lo, hi), |(lo, hi), &q| (lo.min(q), hi.max(q)));
+        let old_spheres = (self.near == NearRule::Triangles).then(|| RegionSpheres::new(&old_pos, &old_sphere));
         // Blocks of the grid whose every vertex lies beyond |d| + edge reach are passed over.
-        self.grid.query_near(lo, hi, reach, |v| {
+        self.grid.query_near(old_box.0, old_box.1, reach, |v| {
             let dv = self.assoc[v as usize].d.abs();
             if self.dense.pinched[v as usize] || c.dense.binary_search(&v).is_ok() {
                 return;
             }
-            let dist = self.region_distance(v, self.dense.pos[v as usize], dv, (lo, hi), spheres.as_ref());
+            let x = self.dense.pos[v as usize];
+            let dist = self.region_distance(v, x, dv, (lo, hi), spheres.as_ref());
             let limit = dv + self.edge_reach[v as usize];
-            if dist < dv {
+            // (Equal included: at d = 0 on a base vertex, a region face of a lower id is the
+            // primary, `preferred`.)
+            if dist <= dv {
                 cand.push(v);
-            } else if dist < limit {
+            } else if dist < limit || self.region_distance(v, x, dv, old_box, old_spheres.as_ref()) < limit {
                 near.push(v);
             }
         });
@@ -609,10 +612,14 @@ impl Snapshot {
     }
 
     /// Vertex v's new map on the region's faces `region` where its primary moves there (a
-    /// solution preferred to its association), else `None`.
+    /// solution preferred to its association), else `None`. Solved over the run's dmax, capped
+    /// at the association's |d|: the solutions every other search finds, bit for bit — a
+    /// vertex at d = 0 on a base vertex too, whose fan may hold a face of a lower id at d = 0
+    /// (a search over a range of 0 found nothing, and the association kept a face that the
+    /// validator's search does not choose: the loop through that point then differed).
     fn moved_onto(&self, v: u32, normals: &[DVec3], region: &Tris, scratch: &mut Scratch) -> Option<Map> {
         let cur = self.assoc[v as usize];
-        match find_primary(self.dense.pos[v as usize], normals, region, self.mode, cur.d.abs(), true, false, scratch) {
+        match find_primary_capped(self.dense.pos[v as usize], normals, region, self.mode, self.dmax, cur.d.abs(), &[], scratch) {
             Found::Hit(t, h) if crate::guarantee::preferred(h.d.abs(), region.ids[t], cur.d.abs(), cur.face) => Some(Map { face: region.ids[t], bary: h.bary, d: h.d }),
             _ => None,
         }

@@ -20,9 +20,9 @@ pub enum Stage {
     /// Faces outside the neighbourhood that may hold a smaller |d|, vertices whose primary
     /// moves onto the region, (strict) second solutions on the ring.
     Reach,
-    /// Continuity: every dense edge of the triangles around changed maps and of the vertices
-    /// whose edges pass near the region, walked once (with the elements where the last try
-    /// failed, tested first).
+    /// Continuity: every dense edge of the triangles around changed maps and around the
+    /// vertices whose edges pass near the region, walked once (with the elements where the last
+    /// try failed, tested first).
     Continuity,
     /// Orientation: every such triangle's image loop.
     Orientation,
@@ -45,9 +45,10 @@ pub struct StageClock {
     placements: AtomicU64,
     /// Failed placements by reason (`Reject as usize`): count and nanoseconds.
     failed: [(AtomicU64, AtomicU64); 8],
-    /// Dense triangles and near edges handed to the check.
+    /// Dense triangles handed to the check, and of them those around vertices associated
+    /// outside the region.
     faces: AtomicU64,
-    edges: AtomicU64,
+    near_faces: AtomicU64,
     /// What the continuity walks did (added once per placement).
     work: Mutex<PointWork>,
     /// Placements failed at a vertex an earlier try found unmapped, tested before the rest.
@@ -87,10 +88,11 @@ impl StageClock {
         self.round_slowest_ns.swap(0, Ordering::Relaxed) as f64 * 1e-9
     }
 
-    /// Counts the dense triangles and near edges one placement hands to the check.
-    pub fn items(&self, faces: usize, edges: usize) {
+    /// Counts the dense triangles one placement hands to the check, and of them those around
+    /// vertices associated outside the region.
+    pub fn items(&self, faces: usize, near_faces: usize) {
         self.faces.fetch_add(faces as u64, Ordering::Relaxed);
-        self.edges.fetch_add(edges as u64, Ordering::Relaxed);
+        self.near_faces.fetch_add(near_faces as u64, Ordering::Relaxed);
     }
 
     /// Adds what one placement's continuity walks did.
@@ -124,7 +126,7 @@ impl StageClock {
             rejected_cpu_s: s(&self.rejected_ns),
             placements_tested: self.placements.load(Ordering::Relaxed),
             faces_checked: self.faces.load(Ordering::Relaxed),
-            edges_checked: self.edges.load(Ordering::Relaxed),
+            near_faces_checked: self.near_faces.load(Ordering::Relaxed),
             work: *self.work.lock().unwrap_or_else(|e| e.into_inner()),
             unmapped_at_hint: self.unmapped_at_hint.load(Ordering::Relaxed),
             torn_at_hint: self.torn_at_hint.load(Ordering::Relaxed),
@@ -154,10 +156,11 @@ pub struct StageSummary {
     pub rejected_cpu_s: f64,
     /// Placements tested (a candidate tests them in order until one passes).
     pub placements_tested: u64,
-    /// Dense triangles (orientation and continuity) and near edges (continuity) handed to the
-    /// check, over all placements (a check stops at its first failure).
+    /// Dense triangles (orientation and continuity) handed to the check, over all placements (a
+    /// check stops at its first failure); of them, those around the vertices associated
+    /// outside the region (whose primary moves onto it, or whose edges pass near it).
     pub faces_checked: u64,
-    pub edges_checked: u64,
+    pub near_faces_checked: u64,
     /// What the continuity walks did over all placements: dense edges walked, and the points
     /// they solved — at exits from a base triangle and at bisection midpoints — of which
     /// how many searched the face grid beyond the candidate's outer faces.

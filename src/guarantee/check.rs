@@ -1519,83 +1519,64 @@ pub fn check_alone<C: MapContext>(ctx: &C, dense: &DenseData, item: FailAt, out:
     r
 }
 
-/// The decimator's form of the check: the dense triangles `faces` (orientation and continuity)
-/// and the dense `edges` (continuity only), both ascending, stopping at the first failure.
-/// Which fails first does not change the verdict, only the time to it. The elements of `first`
-/// that are listed go first, one by one (where an earlier try failed: mostly where it fails
-/// again). Then two stages, as the batch pipeline has them: continuity (every edge the
-/// triangles and `edges` have, walked once in (lower, higher) order), then orientation (every
-/// triangle's loop over those walks). Each stage runs in contiguous chunks over the threads;
-/// the failure reported is the first in that order, whatever the thread count: a tear as the
-/// torn edge, a flip as its triangle. `out` gets what the searches recorded in
-/// [`Scratch::take_reads`], the records they put off ([`CheckOut::deferred`]) and each stage's
-/// time.
+/// The decimator's form of the check: the dense triangles `faces` (orientation and continuity),
+/// ascending, stopping at the first failure. Which fails first does not change the verdict,
+/// only the time to it. The elements of `first` that are listed go first, one by one (where an
+/// earlier try failed: mostly where it fails again). Then two stages, as the batch pipeline has
+/// them: continuity (every edge the triangles have, walked once in (lower, higher) order), then
+/// orientation (every triangle's loop over those walks). Each stage runs in contiguous chunks
+/// over the threads; the failure reported is the first in that order, whatever the thread
+/// count: a tear as the torn edge, a flip as its triangle. `out` gets what the searches
+/// recorded in [`Scratch::take_reads`], the records they put off ([`CheckOut::deferred`]) and
+/// each stage's time.
 pub fn check_faces<C: MapContext + Sync>(
     ctx: &C,
     dense: &DenseData,
     faces: &[u32],
-    edges: &[(u32, u32)],
     first: Option<&[FailAt]>,
     out: &mut CheckOut,
 ) -> Result<(), (super::primary::Reject, FailAt)> {
     use super::primary::Reject;
     // Where an earlier try failed (the elements of `first` that are listed: a triangle of
-    // `faces`, an edge of `edges` or of a triangle of `faces` that the check judges, which the
-    // continuity stage walks).
+    // `faces`, or an edge of a triangle of `faces` that the check judges, which the continuity
+    // stage walks).
     let judged = |f: u32| judged_maps(ctx, dense, f).is_some();
     let of_faces = |a: u32, b: u32| dense.edge_faces(a, b).any(|f| faces.binary_search(&f).is_ok() && judged(f));
     let listed = |h: &FailAt| match *h {
         FailAt::Face(f) => faces.binary_search(&f).is_ok(),
-        FailAt::Edge(a, b) => edges.binary_search(&(a, b)).is_ok() || of_faces(a, b),
+        FailAt::Edge(a, b) => of_faces(a, b),
         FailAt::Vertex(_) => false,
     };
     let hinted: Vec<FailAt> = first.unwrap_or(&[]).iter().copied().filter(listed).collect();
     let check = |item: FailAt, sc: &mut CheckScratch, stats: &mut CheckStats| check_item(ctx, dense, item, sc, stats).map_err(|r| (r, item));
     // Where an earlier try failed: alone, first (they mostly fail again).
     hinted.iter().try_for_each(|&item| check_alone(ctx, dense, item, out).map_err(|r| (r, item)))?;
-    // Continuity: every edge the walk would visit, once — the listed edges and the edges of
-    // the triangles that are not skipped (exempt or unmapped) — in (lower, higher) order.
-    // The triangles' edges (their walks are kept: the loops read them) as one integer key each,
-    // lower vertex above higher, so that the sort compares integers (late in a run a check
-    // sorts 10^5 of them); then merged with the listed edges (walked, not read), which come
-    // sorted. In u64 with the flag kept apart: u128 keys with the flag in them held 16 bytes
-    // an edge, 1.8 MB for the largest checks of the bunny (35k triangles), two at a time.
+    // Continuity: every edge of the triangles that are not skipped (exempt or unmapped), once,
+    // in (lower, higher) order (their walks are kept: the loops read them), as one integer key
+    // each, lower vertex above higher, so that the sort compares integers (late in a run a check
+    // sorts 10^5 of them).
     let key = |a: u32, b: u32| (u64::from(a) << 32) | u64::from(b);
-    let mut read_keys: Vec<u64> = Vec::with_capacity(3 * faces.len());
+    let mut walk: Vec<u64> = Vec::with_capacity(3 * faces.len());
     for &f in faces {
         if judged(f) {
             let fv = dense.faces[f as usize];
-            read_keys.extend((0..3).map(|k| key(fv[k].min(fv[(k + 1) % 3]), fv[k].max(fv[(k + 1) % 3]))));
+            walk.extend((0..3).map(|k| key(fv[k].min(fv[(k + 1) % 3]), fv[k].max(fv[(k + 1) % 3]))));
         }
     }
-    read_keys.sort_unstable();
-    read_keys.dedup();
-    let mut listed = edges.iter().copied().filter(|&(a, b)| ctx.map_of(a).is_some() && ctx.map_of(b).is_some() && !dense.is_exempt_edge(a, b)).peekable();
-    let mut walk: Vec<((u32, u32), bool)> = Vec::with_capacity(read_keys.len() + edges.len());
-    for &k in &read_keys {
-        let e = ((k >> 32) as u32, k as u32);
-        while let Some(l) = listed.next_if(|&l| l <= e) {
-            if l < e {
-                walk.push((l, false));
-            }
-        }
-        walk.push((e, true));
-    }
-    walk.extend(listed.map(|l| (l, false)));
-    drop(read_keys);
+    walk.sort_unstable();
+    walk.dedup();
     let chunks = |n: usize| super::chunks::chunk_count(n, CHECK_CHUNK_MIN, CHECK_CHUNKS_PER_THREAD);
     let (walked, spent) = in_chunks(&walk, chunks(walk.len()), |chunk, out: &mut EdgeTable, sc: &mut CheckScratch, stop| {
-        for &((a, b), read) in chunk {
+        for &k in chunk {
             if stop() {
                 break;
             }
+            let (a, b) = ((k >> 32) as u32, k as u32);
             let Some(j) = edge_jump(ctx, dense, a, b, sc) else { continue };
             if j > 0.0 {
                 return Err((Reject::Tear, FailAt::Edge(a, b)));
             }
-            if read {
-                out.insert((a, b), &sc.edge);
-            }
+            out.insert((a, b), &sc.edge);
         }
         Ok(())
     });
