@@ -295,7 +295,7 @@ impl Snapshot {
         // map stays but whose edges pass near the region: a point of such an edge can reach
         // onto the region (continuity), and where its image lies on a region face the face's
         // new shape moves it in the loop's chart, so the triangle's orientation is judged again
-        // too (with the edges alone, a loop over a reshaped face went unjudged: a 314-face
+        // too (with the edges alone, a loop over a reshaped face went unjudged: a 318-face
         // horse base that the final check found flipped at dense triangle 25804).
         let near_faces = {
             let mut more = Vec::new();
