@@ -192,7 +192,7 @@ impl Snapshot {
             return Some(cur);
         }
         let spheres = (self.near == NearRule::Triangles).then(|| RegionSpheres::new(&tris.pos[..n_region], &tris.sphere[..n_region]));
-        if self.region_distance(v, x, cur.d.abs(), Snapshot::region_box(tris, n_region), spheres.as_ref()) > cur.d.abs() {
+        if !may_move_onto(self.region_distance(v, x, cur.d.abs(), Snapshot::region_box(tris, n_region), spheres.as_ref()), cur.d.abs()) {
             return Some(cur);
         }
         Some(self.moved_onto(v, &normals, &region_tris(tris, n_region), scratch).unwrap_or(cur))
@@ -574,9 +574,7 @@ impl Snapshot {
             let x = self.dense.pos[v as usize];
             let dist = self.region_distance(v, x, dv, (lo, hi), spheres.as_ref());
             let limit = dv + self.edge_reach[v as usize];
-            // (Equal included: at d = 0 on a base vertex, a region face of a lower id is the
-            // primary, `preferred`.)
-            if dist <= dv {
+            if may_move_onto(dist, dv) {
                 cand.push(v);
             } else if dist < limit || self.region_distance(v, x, dv, old_box, old_spheres.as_ref()) < limit {
                 near.push(v);
@@ -649,6 +647,15 @@ pub struct Reached {
     pub near: Vec<u32>,
     /// Faces outside the neighbourhood the searches read.
     pub read_faces: Vec<u32>,
+}
+
+/// Whether a vertex outside a region, at distance `dist` from it (`Snapshot::region_distance`)
+/// with |d| = `dv`, may have its primary move onto it: a solution at x on a triangle T with
+/// depth d' has |x − X| ≤ |d'|, so only where `dist` ≤ `dv` — equal included: at d = 0 on a
+/// base vertex, a region face of a lower id at the same |d| is the primary
+/// ([`crate::guarantee::preferred`]). The one rule of `moved_primaries` and `map_alone`.
+fn may_move_onto(dist: f64, dv: f64) -> bool {
+    dist <= dv
 }
 
 /// The region's faces of a neighbourhood (its first `n_region`) as a set of their own.
