@@ -249,6 +249,11 @@ enum Cmd {
         /// (slow; cross-checks the fast path). Runs on the CPU.
         #[arg(long)]
         exhaustive: bool,
+        /// Also walk every image loop that passes again at 8 pieces an edge, and at 64 where
+        /// that is negative: a loop negative at both is flipped (finer than SPEC's sampled
+        /// image, which the decimator guarantees; counted as fine_flipped / fine_torn).
+        #[arg(long)]
+        fine_loops: bool,
     },
     /// Bake the displacement map of HIGH over BASE's atlas: DISP.exr or DISP.pfm (32-bit float)
     /// or DISP.png (16-bit), with DISP.ext.json (kind, quantisation) and DISP.obj (BASE with the
@@ -495,9 +500,10 @@ fn run(cli: Cli) -> Result<i32> {
             }
             Ok(0)
         }
-        Cmd::Validate { high, base, json, fold_image, resolution, dmax, strict, no_strict, normals, prep, backend, threads, exhaustive } => {
+        Cmd::Validate { high, base, json, fold_image, resolution, dmax, strict, no_strict, normals, prep, backend, threads, exhaustive, fine_loops } => {
             let job = dispdec::app::run::ValidateJob {
                 exhaustive,
+                fine_loops,
                 backend: backend_of(backend),
                 probe: probe(&say),
                 high,
@@ -529,7 +535,25 @@ fn run(cli: Cli) -> Result<i32> {
                 v.checks.jump_edges,
                 v.checks.max_jump,
                 v.checks.straddling,
-                if v.exhaustive { " [exhaustive]" } else { "" },
+                match (v.exhaustive, v.fine_loops) {
+                    (false, false) => String::new(),
+                    (e, f) => format!(
+                        " [{}{}]",
+                        if e { "exhaustive" } else { "" },
+                        if f {
+                            format!(
+                                "{}fine loops: {} flipped, {} torn ({} with an edge point that has no solution; largest jump {:.3e}) that pass as sampled",
+                                if e { "; " } else { "" },
+                                v.checks.fine_flipped,
+                                v.checks.fine_torn,
+                                v.checks.fine_gaps,
+                                v.checks.fine_max_jump
+                            )
+                        } else {
+                            String::new()
+                        }
+                    ),
+                },
                 if v.exempt_edges > 0 || v.exempt_constant > 0 {
                     format!(
                         "; constant mode: {} vertices and {} edges exempt (the scan itself cannot map them; their triangles are not drawn)",

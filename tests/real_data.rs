@@ -231,6 +231,16 @@ fn horse_reaches_the_paper_and_carries_the_scan() {
     assert!(cov["max"].as_f64().unwrap() <= 1.062, "{cov}");
     let pinched_holes = cov["per_face"].as_array().unwrap().iter().filter(|c| c.as_f64().unwrap() < 0.5).count();
     assert_eq!(pinched_holes, 4, "{cov}");
+
+    // Walked at 8 pieces an edge (and 64 where that is negative), one loop that passes as
+    // sampled is flipped: dense triangle 25804, the one stop 60 found (README, The exact
+    // guarantee: SPEC's sampled image against finer walks). Measured on the 308-face base.
+    let o = run(&["validate", horse.to_str().unwrap(), base.to_str().unwrap(), "--backend", "cpu", "--quiet", "--fine-loops", "--json", json.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let c = &v["verdict"]["checks"];
+    assert_eq!((c["fine_flipped"].as_u64(), c["fine_torn"].as_u64()), (Some(1), Some(0)), "{c}");
+    assert_eq!(v["first_failures"][0]["index"], 25804, "{}", v["first_failures"]);
 }
 
 /// `--target-faces 5000` on `scan` stops there (a collapse removes one or two faces), with

@@ -462,6 +462,8 @@ pub struct ValidateJob {
     pub probe: Probe,
     /// Brute force: every dense point against every base triangle (cross-checks the fast path).
     pub exhaustive: bool,
+    /// Every positive image loop walked again at 8 and 64 pieces an edge (`--fine-loops`).
+    pub fine_loops: bool,
 }
 
 /// One failing element, by its index in the input file and its position.
@@ -581,6 +583,7 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
         second: true,
         exhaustive: job.exhaustive,
         compare_chords: true,
+        sampling: if job.fine_loops { crate::guarantee::LoopSampling::Fine } else { crate::guarantee::LoopSampling::Sampled },
     };
     let (verdict, maps) = crate::validate::validate_on(&dense, b, &check, gpu.as_ref().map(|g| g as &dyn crate::validate::Project))?;
     let fold = crate::maps::fold::fold_image(&dense, b, &maps, normals, dmax, job.resolution);

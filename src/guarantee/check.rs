@@ -1129,6 +1129,16 @@ pub struct CheckStats {
     /// Dense triangles on which the first release's chord rule gives the other verdict
     /// (counted only when asked for).
     pub chord_differs: u64,
+    /// Dense triangles whose loop is positive as sampled but flipped at 8 and at 64 pieces an
+    /// edge (counted only with [`LoopSampling::Fine`]).
+    pub fine_flipped: u64,
+    /// Dense triangles whose loop is positive as sampled but whose edges tear at 8 or 64 pieces
+    /// an edge (counted only with [`LoopSampling::Fine`]).
+    pub fine_torn: u64,
+    /// Of `fine_torn`, the triangles with an edge point that has no solution at all.
+    pub fine_gaps: u64,
+    /// The largest jump of the others, in the scan's units.
+    pub fine_max_jump: f64,
 }
 
 impl CheckStats {
@@ -1140,6 +1150,10 @@ impl CheckStats {
         self.chain_charts += o.chain_charts;
         self.no_chart += o.no_chart;
         self.chord_differs += o.chord_differs;
+        self.fine_flipped += o.fine_flipped;
+        self.fine_torn += o.fine_torn;
+        self.fine_gaps += o.fine_gaps;
+        self.fine_max_jump = self.fine_max_jump.max(o.fine_max_jump);
     }
 }
 
@@ -1200,6 +1214,7 @@ fn face_loop<C: MapContext>(
     stats: &mut CheckStats,
 ) -> bool {
     sc.lp.clear();
+    sc.loop_jump = 0.0;
     let mut torn = false;
     // Where the walks are shared, the corners' loop samples, made once for the three edges.
     let corners = (min_depth == 0 && sc.shared.is_some()).then(|| m.map(|mk| loop_sample(ctx, mk)));
@@ -1223,6 +1238,7 @@ fn face_loop<C: MapContext>(
                     stats.gap_edges += 1;
                 }
             }
+            sc.loop_jump = sc.loop_jump.max(jump);
         }
         if torn {
             continue;
@@ -1355,6 +1371,9 @@ pub struct CheckScratch {
     normals: Vec<DVec3>,
     edge: Vec<Sample>,
     lp: Vec<Sample>,
+    /// The largest jump of the last loop's edges (∞: a point without solution), up to the first
+    /// torn edge.
+    loop_jump: f64,
     /// Stars laid out for orientation charts: a scratch serves one context only.
     charts: ChartScratch,
 }
@@ -1413,14 +1432,29 @@ fn one_face_loop_positive<C: MapContext>(ctx: &C, fv: [u32; 3], m: &[Map; 3], sn
     Some(polygon_positive_in(&pts, &mut sc.charts.q))
 }
 
+/// How a positive image loop is sampled before its verdict stands.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LoopSampling {
+    /// SPEC §1's sampled image: a loop that looks positive is positive (a negative one is
+    /// confirmed at [`REFINE_DEPTHS`]). The decimator's tests and the default checks.
+    #[default]
+    Sampled,
+    /// Also walk every positive loop again at 8 pieces an edge, and at 64 where that is
+    /// negative; negative at both is a flip (`validate --fine-loops`: an independent, finer
+    /// check of a base that passes as sampled; docs/exact-guarantee.md).
+    Fine,
+}
+
 /// Checks dense triangle `f`: continuity of its three edges, then the orientation of its image
 /// loop. Edges are walked from their lower vertex id, so that both triangles of an edge see the
-/// same samples. A jump edge is counted in `stats` from one of its two triangles only.
+/// same samples. A jump edge is counted in `stats` from one of its two triangles only. With
+/// [`LoopSampling::Fine`] a positive loop is walked again finer before it passes.
 pub fn check_face<C: MapContext>(
     ctx: &C,
     dense: &DenseData,
     f: u32,
     compare_chords: bool,
+    sampling: LoopSampling,
     sc: &mut CheckScratch,
     stats: &mut CheckStats,
 ) -> FaceCheck {
@@ -1429,6 +1463,42 @@ pub fn check_face<C: MapContext>(
         return FaceCheck::Skipped;
     };
     let snap = SNAP_REL * (0..3).map(|k| dense.pos[fv[k] as usize].distance(dense.pos[fv[(k + 1) % 3] as usize])).fold(0.0, f64::max);
+    let coarse = check_loop(ctx, dense, fv, m, snap, compare_chords, sc, stats);
+    if coarse != FaceCheck::Fine || sampling == LoopSampling::Sampled {
+        return coarse;
+    }
+    // Finer, as a negative loop is confirmed: positive at either depth passes.
+    for &depth in &REFINE_DEPTHS {
+        if !face_loop(ctx, dense, fv, m, depth, sc, stats) {
+            stats.fine_torn += 1;
+            if sc.loop_jump.is_finite() {
+                stats.fine_max_jump = stats.fine_max_jump.max(sc.loop_jump);
+            } else {
+                stats.fine_gaps += 1;
+            }
+            return FaceCheck::Torn;
+        }
+        snap_to_vertices(ctx, &mut sc.lp, snap);
+        if loop_positive(ctx, &sc.lp, &mut sc.charts).is_some_and(|v| v.0) {
+            return FaceCheck::Fine;
+        }
+    }
+    stats.fine_flipped += 1;
+    FaceCheck::Flipped
+}
+
+/// [`check_face`] at SPEC §1's sampling: the loop of `fv` (maps `m`) as its walks sample it.
+#[allow(clippy::too_many_arguments)]
+fn check_loop<C: MapContext>(
+    ctx: &C,
+    dense: &DenseData,
+    fv: [u32; 3],
+    m: [Map; 3],
+    snap: f64,
+    compare_chords: bool,
+    sc: &mut CheckScratch,
+    stats: &mut CheckStats,
+) -> FaceCheck {
     if one_face_loop_positive(ctx, fv, &m, snap, sc) == Some(true) {
         return FaceCheck::Fine;
     }
@@ -1495,7 +1565,7 @@ pub enum FailAt {
 fn check_item<C: MapContext>(ctx: &C, dense: &DenseData, item: FailAt, sc: &mut CheckScratch, stats: &mut CheckStats) -> Result<(), super::primary::Reject> {
     use super::primary::Reject;
     match item {
-        FailAt::Face(f) => match check_face(ctx, dense, f, false, sc, stats) {
+        FailAt::Face(f) => match check_face(ctx, dense, f, false, LoopSampling::Sampled, sc, stats) {
             FaceCheck::Torn => Err(Reject::Tear),
             FaceCheck::Flipped => Err(Reject::Flip),
             FaceCheck::Fine | FaceCheck::Skipped => Ok(()),

@@ -14,5 +14,5 @@ pub mod chunks;
 pub mod ids;
 pub mod primary;
 
-pub use check::{check_alone, check_face, check_faces, CheckOut, edge_image, loop_positive, CheckScratch, CheckStats, FailAt, FaceCheck, MapContext, Sample};
+pub use check::{check_alone, check_face, check_faces, CheckOut, edge_image, loop_positive, CheckScratch, CheckStats, FailAt, FaceCheck, LoopSampling, MapContext, Sample};
 pub use primary::*;

@@ -6,7 +6,7 @@
 //! BVH node's box, then to the triangle), so a vertex costs a handful of cubic solves.
 
 use crate::geometry::bvh::Bvh;
-use crate::guarantee::{TriBounds, lean_lower_bound_of, shell_lower_bound_of, check_face, find_primary, solve_tri, direction_at, CheckScratch, CheckStats, FaceCheck, FaceInfo, Found, Map, MapContext, NormalMode, preferred, Scratch, Tris, SAME_SOLUTION_REL};
+use crate::guarantee::{TriBounds, lean_lower_bound_of, shell_lower_bound_of, check_face, find_primary, solve_tri, direction_at, CheckScratch, CheckStats, FaceCheck, FaceInfo, Found, LoopSampling, Map, MapContext, NormalMode, preferred, Scratch, Tris, SAME_SOLUTION_REL};
 use crate::mesh::{vertex_faces, DenseData};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -56,6 +56,9 @@ pub struct Verdict {
     pub first_torn: Vec<u32>,
     /// Judged by brute force (`--exhaustive`).
     pub exhaustive: bool,
+    /// Positive loops walked again at 8 and 64 pieces an edge (`--fine-loops`; what that
+    /// found: `checks.fine_flipped`, `checks.fine_torn`).
+    pub fine_loops: bool,
     /// (constant mode) Vertices exempt because no base can map them (counted in `pinched`).
     pub exempt_constant: usize,
     /// (constant mode) Dense edges exempt because the scan itself cannot map their points (its
@@ -311,11 +314,13 @@ pub struct CheckOptions {
     /// Also judge straddling triangles by the first release's chord rule, and count where it
     /// differs.
     pub compare_chords: bool,
+    /// How positive loops are sampled (`--fine-loops`: again at 8 and 64 pieces an edge).
+    pub sampling: LoopSampling,
 }
 
 impl CheckOptions {
     pub fn new(mode: NormalMode, dmax: f64) -> CheckOptions {
-        CheckOptions { mode, dmax, strict: false, second: false, exhaustive: false, compare_chords: false }
+        CheckOptions { mode, dmax, strict: false, second: false, exhaustive: false, compare_chords: false, sampling: LoopSampling::Sampled }
     }
 }
 
@@ -393,7 +398,7 @@ pub fn validate_on(
         .into_par_iter()
         .map_init(CheckScratch::default, |sc, f| {
             let mut stats = CheckStats::default();
-            let r = check_face(&ctx, dense, f, opts.compare_chords, sc, &mut stats);
+            let r = check_face(&ctx, dense, f, opts.compare_chords, opts.sampling, sc, &mut stats);
             (f, r, stats)
         })
         .collect();
@@ -459,6 +464,7 @@ pub fn validate_on(
         first_flipped: flipped.into_iter().take(10).collect(),
         first_torn: torn.into_iter().take(10).collect(),
         exhaustive: opts.exhaustive,
+        fine_loops: opts.sampling == LoopSampling::Fine,
         checks,
         exempt_constant,
         exempt_edges: dense.exempt_edges.len(),
