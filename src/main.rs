@@ -202,6 +202,12 @@ enum Cmd {
         /// the box around them (box: the earlier rule, same verdicts, more edges walked).
         #[arg(long, value_enum, default_value = "triangles")]
         near_rule: NearRuleArg,
+        /// Every check (the candidate test, the re-check, the global check) walks each image
+        /// loop that passes as sampled again at 8 pieces an edge, and at 64 where that is
+        /// negative, as `validate --fine-loops` does: finer than SPEC's sampled image, and
+        /// slower (README, The exact guarantee).
+        #[arg(long)]
+        fine_loops: bool,
         #[command(flatten)]
         prep: PrepArgs,
         /// Write the scan as decimated (welded, repaired) to this OBJ (.obj or .obj.gz), so that
@@ -418,6 +424,7 @@ fn run(cli: Cli) -> Result<i32> {
             threads,
             batch,
             near_rule,
+            fine_loops,
             prep,
             repaired,
         } => {
@@ -439,6 +446,7 @@ fn run(cli: Cli) -> Result<i32> {
                         NearRuleArg::Box => NearRule::Box,
                         NearRuleArg::Triangles => NearRule::Triangles,
                     },
+                    loops: if fine_loops { dispdec::guarantee::LoopSampling::Fine } else { dispdec::guarantee::LoopSampling::Sampled },
                 },
                 threads,
                 progress: !say.quiet && std::io::stderr().is_terminal(),

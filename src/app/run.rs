@@ -182,6 +182,8 @@ pub struct Report {
     pub batch: usize,
     /// `--near-rule` (triangles unless asked).
     pub near_rule: crate::decimate::NearRule,
+    /// `--fine-loops`: every check walked positive loops again at 8 pieces an edge.
+    pub fine_loops: bool,
     pub threads: usize,
     pub dmax: f64,
     pub max_abs_d: f64,
@@ -300,6 +302,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
     // The final word: the independent global check, strict when the run was (SPEC §1).
     let mut check = crate::validate::CheckOptions::new(job.options.normals, state.dmax);
     check.strict = job.options.strict;
+    check.sampling = job.options.loops;
     let (global, _) = crate::validate::validate_on(
         &state.dense,
         &crate::validate::Base { positions: base.positions.clone(), directions: base.directions.clone(), faces: base.faces.clone() },
@@ -378,6 +381,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         max_valence: job.options.max_valence,
         batch: job.options.batch,
         near_rule: job.options.near,
+        fine_loops: job.options.loops == crate::guarantee::LoopSampling::Fine,
         threads: rayon::current_num_threads(),
         dmax: state.dmax,
         max_abs_d: recheck.max_abs_d,

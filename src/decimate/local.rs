@@ -934,6 +934,9 @@ impl MapContext for CandidateContext<'_> {
     fn jump_depth(&self) -> u32 {
         crate::guarantee::check::CANDIDATE_JUMP_DEPTH
     }
+    fn loop_sampling(&self) -> crate::guarantee::LoopSampling {
+        self.st.loops
+    }
     fn mode(&self) -> NormalMode {
         self.st.mode
     }

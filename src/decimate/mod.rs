@@ -13,7 +13,7 @@ pub mod stages;
 
 pub use outcome::{Accepted, Evaluator, Outcome, Rejected};
 use crate::guarantee::ids::sorted_unique;
-use crate::guarantee::{FaceInfo, FailAt, Map, NormalMode, Reject, TriBounds, Tris};
+use crate::guarantee::{FaceInfo, FailAt, LoopSampling, Map, NormalMode, Reject, TriBounds, Tris};
 use crate::geometry::{face_cross, vertex_direction};
 use crate::decimate::grid::{DenseGrid, FaceGrid};
 use crate::mesh::{DenseData, DenseMesh};
@@ -49,6 +49,8 @@ pub struct Options {
     pub batch: usize,
     /// How a candidate finds the dense vertices whose edges may reach onto its region.
     pub near: NearRule,
+    /// How every check samples image loops (`--fine-loops`: also at 8 pieces an edge).
+    pub loops: LoopSampling,
 }
 
 /// How a candidate measures a dense vertex's distance to its collapsed region, to find the
@@ -78,6 +80,7 @@ impl Default for Options {
             strict: false,
             batch: 16,
             near: NearRule::default(),
+            loops: LoopSampling::Sampled,
         }
     }
 }
@@ -226,6 +229,8 @@ pub struct Snapshot {
     pub strict: bool,
     pub max_valence: u32,
     pub near: NearRule,
+    /// How the candidate test and the re-check sample image loops.
+    pub loops: LoopSampling,
     /// The dense mesh (immutable).
     pub dense: DenseData,
     // Base mesh.
@@ -316,6 +321,7 @@ impl State {
             strict: opts.strict,
             max_valence: opts.max_valence,
             near: opts.near,
+            loops: opts.loops,
             dense: dd,
             pos: dense.positions.clone(),
             dir: vec![DVec3::ZERO; nv],

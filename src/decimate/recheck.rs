@@ -4,7 +4,7 @@
 
 use crate::decimate::State;
 use crate::topology::INVALID;
-use crate::guarantee::{check_face, CheckScratch, LoopSampling, CheckStats, FaceCheck, FaceInfo, Found, Map, MapContext, NormalMode, Scratch, Tris, find_primary};
+use crate::guarantee::{check_face, CheckScratch, CheckStats, FaceCheck, FaceInfo, Found, Map, MapContext, NormalMode, Scratch, Tris, find_primary};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -66,7 +66,7 @@ impl State {
             .fold(
                 || (CheckStats::default(), Vec::new(), Vec::new(), CheckScratch::default()),
                 |(mut stats, mut flipped, mut torn, mut sc), f| {
-                    match check_face(&ctx, dense, f, false, LoopSampling::Sampled, &mut sc, &mut stats) {
+                    match check_face(&ctx, dense, f, false, self.loops, &mut sc, &mut stats) {
                         FaceCheck::Flipped => flipped.push(f),
                         FaceCheck::Torn => torn.push(f),
                         FaceCheck::Fine | FaceCheck::Skipped => {}

@@ -107,6 +107,10 @@ pub trait MapContext {
     fn jump_depth(&self) -> u32 {
         MAX_DEPTH
     }
+    /// How a triangle's loop is sampled before a positive verdict stands ([`check_face`]).
+    fn loop_sampling(&self) -> LoopSampling {
+        LoopSampling::Sampled
+    }
 }
 
 /// Barycentric coordinates on face `target` of the point with `bary` on face `verts`, when the
@@ -1440,8 +1444,9 @@ pub enum LoopSampling {
     #[default]
     Sampled,
     /// Also walk every positive loop again at 8 pieces an edge, and at 64 where that is
-    /// negative; negative at both is a flip (`validate --fine-loops`: an independent, finer
-    /// check of a base that passes as sampled; docs/exact-guarantee.md).
+    /// negative; negative at both is a flip (`--fine-loops`: in `validate`, a finer check of a
+    /// base that passes as sampled; in `decimate`, every check of the run, so that its base
+    /// passes that finer check; docs/exact-guarantee.md).
     Fine,
 }
 
@@ -1565,7 +1570,7 @@ pub enum FailAt {
 fn check_item<C: MapContext>(ctx: &C, dense: &DenseData, item: FailAt, sc: &mut CheckScratch, stats: &mut CheckStats) -> Result<(), super::primary::Reject> {
     use super::primary::Reject;
     match item {
-        FailAt::Face(f) => match check_face(ctx, dense, f, false, LoopSampling::Sampled, sc, stats) {
+        FailAt::Face(f) => match check_face(ctx, dense, f, false, ctx.loop_sampling(), sc, stats) {
             FaceCheck::Torn => Err(Reject::Tear),
             FaceCheck::Flipped => Err(Reject::Flip),
             FaceCheck::Fine | FaceCheck::Skipped => Ok(()),
