@@ -1220,13 +1220,18 @@ fn face_loop<C: MapContext>(
     sc.lp.clear();
     sc.loop_jump = 0.0;
     let mut torn = false;
-    // Where the walks are shared, the corners' loop samples, made once for the three edges.
-    let corners = (min_depth == 0 && sc.shared.is_some()).then(|| m.map(|mk| loop_sample(ctx, mk)));
+    // Where the walks at this depth are shared, the corners' loop samples, made once for the
+    // three edges.
+    let shared = match min_depth {
+        0 => sc.shared.is_some(),
+        d => d == REFINE_DEPTHS[0] && sc.shared_fine.is_some(),
+    };
+    let corners = shared.then(|| m.map(|mk| loop_sample(ctx, mk)));
     for k in 0..3 {
         let (a, b) = (fv[k], fv[(k + 1) % 3]);
         let (ka, kb) = (k, (k + 1) % 3);
         let (lo, hi, klo, khi) = if a < b { (a, b, ka, kb) } else { (b, a, kb, ka) };
-        let cached = corners.and_then(|c| sc.cached_edge((lo, c[klo]), (hi, c[khi])));
+        let cached = corners.and_then(|c| sc.cached_edge(min_depth, (lo, c[klo]), (hi, c[khi])));
         let jump = match cached {
             Some(j) => j,
             None => walk_edge(ctx, dense, (lo, m[klo]), (hi, m[khi]), min_depth, sc),
@@ -1272,11 +1277,30 @@ fn walk_edge<C: MapContext>(ctx: &C, dense: &DenseData, (a, ma): (u32, Map), (b,
 /// The largest open gap of dense edge (a, b)'s image (its samples in `sc.edge`); `None` where
 /// the edge is not judged (an end unmapped or pinched, or the edge exempt).
 fn edge_jump<C: MapContext>(ctx: &C, dense: &DenseData, a: u32, b: u32, sc: &mut CheckScratch) -> Option<f64> {
+    edge_jump_at(ctx, dense, a, b, 0, sc)
+}
+
+/// [`edge_jump`] with every piece bisected at least `min_depth` times.
+fn edge_jump_at<C: MapContext>(ctx: &C, dense: &DenseData, a: u32, b: u32, min_depth: u32, sc: &mut CheckScratch) -> Option<f64> {
     let (ma, mb) = (ctx.map_of(a)?, ctx.map_of(b)?);
     if dense.is_exempt_edge(a, b) {
         return None;
     }
-    Some(walk_edge(ctx, dense, (a, ma), (b, mb), 0, sc))
+    Some(walk_edge(ctx, dense, (a, ma), (b, mb), min_depth, sc))
+}
+
+/// Whether edge (a, b) tears: as walked, and with [`LoopSampling::Fine`] also at the first of
+/// [`REFINE_DEPTHS`] (a triangle with an edge torn there is torn by [`check_face`] whatever its
+/// loop). `None` where the edge is not judged.
+fn edge_torn<C: MapContext>(ctx: &C, dense: &DenseData, a: u32, b: u32, sc: &mut CheckScratch) -> Option<bool> {
+    let j = edge_jump(ctx, dense, a, b, sc)?;
+    if j > 0.0 {
+        return Some(true);
+    }
+    if ctx.loop_sampling() == LoopSampling::Fine {
+        return Some(edge_jump_at(ctx, dense, a, b, REFINE_DEPTHS[0], sc)? > 0.0);
+    }
+    Some(false)
 }
 
 /// What [`check_faces`] hands back besides its verdict.
@@ -1372,6 +1396,9 @@ pub struct CheckScratch {
     /// Edge images already walked: [`check_faces`]'s continuity stage, read by its orientation
     /// stage on every thread.
     shared: Option<std::sync::Arc<EdgeTable>>,
+    /// The same edges walked at the first of [`REFINE_DEPTHS`] (with [`LoopSampling::Fine`]):
+    /// the finer loops read them.
+    shared_fine: Option<std::sync::Arc<EdgeTable>>,
     normals: Vec<DVec3>,
     edge: Vec<Sample>,
     lp: Vec<Sample>,
@@ -1383,12 +1410,17 @@ pub struct CheckScratch {
 }
 
 impl CheckScratch {
-    /// The image of edge (a, b) (a < b; `sa`, `sb` the ends' [`loop_sample`]s) from the walked
-    /// edges into `self.edge`, for a loop: the stored inner samples between the ends' samples.
-    /// `None` where no walk is shared; otherwise the edge is continuous (jump 0).
-    fn cached_edge(&mut self, (a, sa): (u32, Sample), (b, sb): (u32, Sample)) -> Option<f64> {
-        let CheckScratch { shared, edge, .. } = self;
-        let table = shared.as_deref()?;
+    /// The image of edge (a, b) (a < b; `sa`, `sb` the ends' [`loop_sample`]s) walked at
+    /// `min_depth` from the walked edges into `self.edge`, for a loop: the stored inner samples
+    /// between the ends' samples. `None` where no walk at that depth is shared; otherwise the
+    /// edge is continuous (jump 0).
+    fn cached_edge(&mut self, min_depth: u32, (a, sa): (u32, Sample), (b, sb): (u32, Sample)) -> Option<f64> {
+        let CheckScratch { shared, shared_fine, edge, .. } = self;
+        let table = match min_depth {
+            0 => shared.as_deref()?,
+            d if d == REFINE_DEPTHS[0] => shared_fine.as_deref()?,
+            _ => return None,
+        };
         edge.clear();
         edge.push(sa);
         edge.extend_from_slice(table.inner((a, b)));
@@ -1575,8 +1607,8 @@ fn check_item<C: MapContext>(ctx: &C, dense: &DenseData, item: FailAt, sc: &mut 
             FaceCheck::Flipped => Err(Reject::Flip),
             FaceCheck::Fine | FaceCheck::Skipped => Ok(()),
         },
-        FailAt::Edge(a, b) => match edge_jump(ctx, dense, a, b, sc) {
-            Some(j) if j > 0.0 => Err(Reject::Tear),
+        FailAt::Edge(a, b) => match edge_torn(ctx, dense, a, b, sc) {
+            Some(true) => Err(Reject::Tear),
             _ => Ok(()),
         },
         FailAt::Vertex(_) => Ok(()),
@@ -1641,7 +1673,11 @@ pub fn check_faces<C: MapContext + Sync>(
     walk.sort_unstable();
     walk.dedup();
     let chunks = |n: usize| super::chunks::chunk_count(n, CHECK_CHUNK_MIN, CHECK_CHUNKS_PER_THREAD);
-    let (walked, spent) = in_chunks(&walk, chunks(walk.len()), |chunk, out: &mut EdgeTable, sc: &mut CheckScratch, stop| {
+    // With fine loops, every edge is walked at the first refine depth too (where every loop
+    // that passes is walked again): once here, not once for each of its triangles. A tear
+    // there tears every triangle of the edge, whatever its loop: the same verdicts.
+    let fine = ctx.loop_sampling() == LoopSampling::Fine;
+    let (walked, spent) = in_chunks(&walk, chunks(walk.len()), |chunk, out: &mut (EdgeTable, EdgeTable), sc: &mut CheckScratch, stop| {
         for &k in chunk {
             if stop() {
                 break;
@@ -1651,19 +1687,28 @@ pub fn check_faces<C: MapContext + Sync>(
             if j > 0.0 {
                 return Err((Reject::Tear, FailAt::Edge(a, b)));
             }
-            out.insert((a, b), &sc.edge);
+            out.0.insert((a, b), &sc.edge);
+            if fine {
+                if edge_jump_at(ctx, dense, a, b, REFINE_DEPTHS[0], sc).is_some_and(|j| j > 0.0) {
+                    return Err((Reject::Tear, FailAt::Edge(a, b)));
+                }
+                out.1.insert((a, b), &sc.edge);
+            }
         }
         Ok(())
     });
     out.continuity_ns += out.absorb(spent);
-    let mut table = EdgeTable::default();
+    let (mut table, mut table_fine) = (EdgeTable::default(), EdgeTable::default());
     for part in walked? {
-        table.append(part);
+        table.append(part.0);
+        table_fine.append(part.1);
     }
     let table = std::sync::Arc::new(table);
+    let table_fine = fine.then(|| std::sync::Arc::new(table_fine));
     // Orientation: every triangle's loop, its edges read from the table.
     let (oriented, spent) = in_chunks(faces, chunks(faces.len()), |chunk, _: &mut (), sc: &mut CheckScratch, stop| {
         sc.shared = Some(table.clone());
+        sc.shared_fine = table_fine.clone();
         let mut stats = CheckStats::default();
         chunk.iter().take_while(|_| !stop()).try_for_each(|&f| check(FailAt::Face(f), sc, &mut stats))
     });
