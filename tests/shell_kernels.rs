@@ -329,6 +329,19 @@ fn decimate_and_validate_with_backend_gpu_match_cpu() {
     let rep: Value = serde_json::from_slice(&std::fs::read(&j).unwrap()).unwrap();
     assert!(rep["backend"].as_str().unwrap().starts_with("gpu"), "{}", rep["backend"]);
     assert_eq!(rep["verdict"]["valid"], true);
+
+    // `--fine-loops` (the checks walk passing loops finer): the same bytes on both paths, and a
+    // base that `validate --fine-loops --backend gpu` finds valid.
+    let mut fine = Vec::new();
+    for backend in ["cpu", "gpu"] {
+        let (b, m) = (dir.join(format!("fine-{backend}.obj")), dir.join(format!("fine-{backend}.map")));
+        let o = run(&["decimate", scan.to_str().unwrap(), "-o", b.to_str().unwrap(), "--map", m.to_str().unwrap(), "--backend", backend, "--fine-loops", "-q"]);
+        assert_eq!(o.status.code(), Some(0), "{backend} --fine-loops: {}", String::from_utf8_lossy(&o.stderr));
+        fine.push((std::fs::read(&b).unwrap(), std::fs::read(&m).unwrap()));
+    }
+    assert!(fine[0] == fine[1], "--backend gpu --fine-loops must write the CPU path's bytes");
+    let o = run(&["validate", scan.to_str().unwrap(), dir.join("fine-gpu.obj").to_str().unwrap(), "--backend", "gpu", "--fine-loops", "--json", j.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
 /// Issue 11: on real scans the GPU path writes the CPU path's bytes — the bunny and the horse,
