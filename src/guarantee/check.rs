@@ -1141,7 +1141,7 @@ pub struct CheckStats {
     pub fine_torn: u64,
     /// Of `fine_torn`, the triangles with an edge point that has no solution at all.
     pub fine_gaps: u64,
-    /// The largest jump of the others, in the scan's units.
+    /// The largest jump of the other triangles of `fine_torn`, in the scan's units.
     pub fine_max_jump: f64,
 }
 
@@ -1631,7 +1631,8 @@ pub fn check_alone<C: MapContext>(ctx: &C, dense: &DenseData, item: FailAt, out:
 /// only the time to it. The elements of `first` that are listed go first, one by one (where an
 /// earlier try failed: mostly where it fails again). Then two stages, as the batch pipeline has
 /// them: continuity (every edge the triangles have, walked once in (lower, higher) order), then
-/// orientation (every triangle's loop over those walks). Each stage runs in contiguous chunks
+/// orientation (every triangle's loop over those walks; with [`LoopSampling::Fine`] every edge
+/// is walked at the first of [`REFINE_DEPTHS`] too, for the finer loops). Each stage runs in contiguous chunks
 /// over the threads; the failure reported is the first in that order, whatever the thread
 /// count: a tear as the torn edge, a flip as its triangle. `out` gets what the searches
 /// recorded in [`Scratch::take_reads`], the records they put off ([`CheckOut::deferred`]) and
