@@ -257,7 +257,8 @@ enum Cmd {
         exhaustive: bool,
         /// Also walk every image loop that passes again at 8 pieces an edge, and at 64 where
         /// that is negative: a loop negative at both is flipped (finer than SPEC's sampled
-        /// image, which the decimator guarantees; counted as fine_flipped / fine_torn).
+        /// image, which the decimator guarantees by default; counted as fine_flipped /
+        /// fine_torn). Default: on when BASE was made with `decimate --fine-loops`.
         #[arg(long)]
         fine_loops: bool,
     },

@@ -17,6 +17,11 @@ pub struct Settings {
     pub scan_faces: usize,
     /// How the scan was prepared: the same preparation gives the same dense mesh again.
     pub preparation: Preparation,
+    /// Made with `--fine-loops` (every check walked passing loops finer): `validate` then
+    /// judges the same way. Written only when true, so that other bases' settings keep their
+    /// bytes (and older files read as false).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub fine_loops: bool,
 }
 
 impl Settings {
@@ -137,7 +142,21 @@ mod tests {
             scan: "bunny.ply.gz".into(),
             scan_faces: 69451,
             preparation: Preparation { weld: true, repair: true, min_component: 10 },
+            fine_loops: true,
         }
+    }
+
+    /// A base made without `--fine-loops` writes no `fine_loops` key (its settings keep the
+    /// bytes of the release before), and settings without one read as false.
+    #[test]
+    fn fine_loops_is_written_only_when_on() {
+        let mut s = made();
+        s.fine_loops = false;
+        let line = s.obj_line();
+        assert!(!line.contains("fine_loops"), "{line}");
+        assert_eq!(Settings::parse(line.strip_prefix(crate::mesh::SETTINGS_TAG).unwrap()).unwrap(), s);
+        s.fine_loops = true;
+        assert!(s.obj_line().contains("\"fine_loops\":true"), "{}", s.obj_line());
     }
 
     #[test]

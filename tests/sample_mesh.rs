@@ -132,4 +132,15 @@ fn fine_loops_make_a_base_that_passes_the_finer_walk() {
     assert_eq!(code, Some(0), "{v}");
     let c = &v["checks"];
     assert_eq!((c["fine_flipped"].as_u64(), c["fine_torn"].as_u64()), (Some(0), Some(0)), "{c}");
+
+    // The fine base says how it was made, and `validate` judges it so without the flag; the
+    // default base's settings line carries no such key (its bytes are the release's before).
+    let line = |name: &str| std::fs::read_to_string(dir.join(format!("{name}.obj"))).unwrap().lines().find(|l| l.contains("\"scan_faces\"")).unwrap_or_default().to_string();
+    assert!(line("fine").contains("\"fine_loops\":true"), "{}", line("fine"));
+    assert!(!line("default").contains("fine_loops"), "{}", line("default"));
+    let v = dir.join("fine-again.json");
+    let o = run(&["validate", scan.to_str().unwrap(), dir.join("fine.obj").to_str().unwrap(), "--backend", "cpu", "-q", "--json", v.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&v).unwrap()).unwrap();
+    assert_eq!(v["verdict"]["fine_loops"], true, "{}", v["verdict"]);
 }

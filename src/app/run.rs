@@ -318,6 +318,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         scan: job.input.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default(),
         scan_faces: state.dense.faces.len(),
         preparation: job.preparation,
+        fine_loops: job.options.loops == crate::guarantee::LoopSampling::Fine,
     };
     let header = format!(
         "dispdec base mesh: {} faces from {} ({} normals{})\nvn are the directions N used by the displacement map\n{}",
@@ -587,7 +588,12 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
         second: true,
         exhaustive: job.exhaustive,
         compare_chords: true,
-        sampling: if job.fine_loops { crate::guarantee::LoopSampling::Fine } else { crate::guarantee::LoopSampling::Sampled },
+        // `--fine-loops`, or a base made with it: judged as it was made.
+        sampling: if job.fine_loops || loaded.settings.as_ref().is_some_and(|s| s.fine_loops) {
+            crate::guarantee::LoopSampling::Fine
+        } else {
+            crate::guarantee::LoopSampling::Sampled
+        },
     };
     let (verdict, maps) = crate::validate::validate_on(&dense, b, &check, gpu.as_ref().map(|g| g as &dyn crate::validate::Project))?;
     let fold = crate::maps::fold::fold_image(&dense, b, &maps, normals, dmax, job.resolution);

@@ -123,6 +123,7 @@ mod tests {
             scan: "s.obj".into(),
             scan_faces: 7,
             preparation: Default::default(),
+            fine_loops: false,
         };
         let m = MapFile {
             base_faces: 3,
