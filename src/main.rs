@@ -226,6 +226,11 @@ enum Cmd {
         /// Fold image (PNG): green = covered once, white = fold, red = hole.
         #[arg(long)]
         fold_image: Option<PathBuf>,
+        /// The scan's failing triangles as an OBJ (F.obj or F.obj.gz), one object per kind
+        /// (flipped, torn, unmapped), in the scan's coordinates: open it over HIGH to see where
+        /// BASE fails.
+        #[arg(long, value_name = "F.obj")]
+        failures: Option<PathBuf>,
         /// Atlas size in texels.
         #[arg(long, default_value_t = 1024)]
         resolution: u32,
@@ -509,7 +514,7 @@ fn run(cli: Cli) -> Result<i32> {
             }
             Ok(0)
         }
-        Cmd::Validate { high, base, json, fold_image, resolution, dmax, strict, no_strict, normals, prep, backend, threads, exhaustive, fine_loops } => {
+        Cmd::Validate { high, base, json, fold_image, failures, resolution, dmax, strict, no_strict, normals, prep, backend, threads, exhaustive, fine_loops } => {
             let job = dispdec::app::run::ValidateJob {
                 exhaustive,
                 fine_loops,
@@ -519,6 +524,7 @@ fn run(cli: Cli) -> Result<i32> {
                 base,
                 json,
                 fold_image,
+                failures,
                 resolution,
                 flags: flags(&prep, normals, dmax, if strict { Some(true) } else if no_strict { Some(false) } else { None }),
                 threads,

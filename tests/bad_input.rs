@@ -245,6 +245,13 @@ fn an_output_on_an_input_is_refused_and_the_input_kept() {
     let b = base.to_str().unwrap();
     refused(&["validate", s, b, "--json", b], "base.obj", "would overwrite the input");
     refused(&["validate", s, b, "--fold-image", s], "scan.obj", "would overwrite the input");
+    refused(&["validate", s, b, "--failures", b], "base.obj", "would overwrite the input");
+    let (fold, fails) = (d.join("f.png"), d.join("f.obj"));
+    refused(&["validate", s, b, "--fold-image", fold.to_str().unwrap(), "--failures", fold.to_str().unwrap()], "f.png", "both the fold image and the failures mesh");
+    // An unwritable report: neither the fold image nor the failures mesh is left behind.
+    let o = run(&["validate", s, b, "--fold-image", fold.to_str().unwrap(), "--failures", fails.to_str().unwrap(), "--json", d.join("no/such/dir/r.json").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!fold.exists() && !fails.exists(), "no partial output");
     let disp = d.join("disp.png");
     let o = run(&["bake", s, b, "-o", disp.to_str().unwrap(), "--resolution", "64"]);
     assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));

@@ -165,14 +165,21 @@ fn quadric_error_base_of_the_bunny_fails_where_dispdecs_passes() {
     // by brute force at 4,096 points); its two ends lie on one base face and the piece is
     // consistent with their stretch, so the sampled walk takes it whole. Measured: 1 torn, 1
     // of them a gap, 0 flipped.
-    let (code, rf, err) = validate(&dir, &bunny, &ours, &["--fine-loops"]);
+    let fine_failures = dir.join("fine-failures.obj");
+    let (code, rf, err) = validate(&dir, &bunny, &ours, &["--fine-loops", "--failures", fine_failures.to_str().unwrap()]);
     assert_eq!(code, 1, "{err}");
     let c = &rf["verdict"]["checks"];
     assert_eq!((c["fine_flipped"].as_u64(), c["fine_torn"].as_u64(), c["fine_gaps"].as_u64()), (Some(0), Some(1), Some(1)), "{c}");
     assert_eq!(rf["first_failures"][0]["index"], 66359, "{}", rf["first_failures"]);
     assert_eq!(c["straddling"], r["verdict"]["checks"]["straddling"], "the sampled verdicts are the same");
 
+    // `--failures` draws that one triangle where it lies on the scan.
     let scan = dispdec::mesh::load_dense(&bunny).unwrap();
+    let groups = failure_groups(&fine_failures);
+    assert_eq!(groups.len(), 1, "{groups:?}");
+    assert_eq!(groups[0].0, "torn");
+    assert_eq!(groups[0].1, vec![scan.faces[66359].map(|v| scan.positions[v as usize])]);
+
     let verts: Vec<[f32; 3]> = scan.positions.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect();
     let indices: Vec<u32> = scan.faces.iter().flatten().copied().collect();
     let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&verts), 12, 0).unwrap();
@@ -181,10 +188,61 @@ fn quadric_error_base_of_the_bunny_fails_where_dispdecs_passes() {
     assert!(qem_faces.len() <= faces + 2 && qem_faces.len() + 40 >= faces, "{} vs {faces}", qem_faces.len());
     let qem = dir.join("qem.obj");
     write_obj(&qem, &scan.positions, &qem_faces);
-    let (code, r, err) = validate(&dir, &bunny, &qem, &[]);
+    let qem_failures = dir.join("qem-failures.obj.gz");
+    let (code, r, err) = validate(&dir, &bunny, &qem, &["--failures", qem_failures.to_str().unwrap()]);
     assert_eq!(code, 1, "the quadric base must be found invalid: {err}");
     let v = &r["verdict"];
     assert!(v["unmapped"].as_u64().unwrap() + v["flipped"].as_u64().unwrap() + v["torn"].as_u64().unwrap() > 0);
+    // Its failures mesh holds every flipped and torn triangle and every triangle with an
+    // unmapped corner, each at the scan's own positions (the first failures of the report
+    // among them).
+    let groups = failure_groups(&qem_failures);
+    let count = |name: &str| groups.iter().find(|g| g.0 == name).map_or(0, |g| g.1.len()) as u64;
+    assert_eq!(count("flipped"), v["flipped"].as_u64().unwrap());
+    assert_eq!(count("torn"), v["torn"].as_u64().unwrap());
+    let by_corners: std::collections::HashSet<[[u64; 3]; 3]> =
+        groups.iter().flat_map(|g| g.1.iter()).map(|t| t.map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])).collect();
+    for f in r["first_failures"].as_array().unwrap().iter().filter(|f| f["kind"] != "unmapped") {
+        let t = scan.faces[f["index"].as_u64().unwrap() as usize].map(|v| scan.positions[v as usize]);
+        assert!(by_corners.contains(&t.map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])), "{f}");
+    }
+    let around: Vec<&[glam::DVec3; 3]> = groups.iter().filter(|g| g.0 == "unmapped").flat_map(|g| g.1.iter()).collect();
+    assert_eq!(around.is_empty(), v["unmapped"] == 0);
+    for f in r["first_failures"].as_array().unwrap().iter().filter(|f| f["kind"] == "unmapped") {
+        let p = glam::DVec3::from_array(serde_json::from_value(f["position"].clone()).unwrap());
+        // (serde_json reads floats to within an ulp, not always exactly.)
+        assert!(around.iter().any(|t| t.iter().any(|q| q.distance(p) < 1e-12)), "{f}");
+    }
+}
+
+/// The objects of a `validate --failures` OBJ (or .obj.gz): (name, triangles by their corners).
+fn failure_groups(path: &std::path::Path) -> Vec<(String, Vec<[glam::DVec3; 3]>)> {
+    let bytes = std::fs::read(path).unwrap();
+    let text = if path.to_string_lossy().ends_with(".gz") {
+        let mut s = String::new();
+        std::io::Read::read_to_string(&mut flate2::read::GzDecoder::new(&bytes[..]), &mut s).unwrap();
+        s
+    } else {
+        String::from_utf8(bytes).unwrap()
+    };
+    let mut verts = Vec::new();
+    let mut groups: Vec<(String, Vec<[glam::DVec3; 3]>)> = Vec::new();
+    for line in text.lines() {
+        let mut it = line.split_whitespace();
+        match it.next() {
+            Some("v") => {
+                let c: Vec<f64> = it.map(|t| t.parse().unwrap()).collect();
+                verts.push(glam::DVec3::new(c[0], c[1], c[2]));
+            }
+            Some("o") => groups.push((it.next().unwrap().to_string(), Vec::new())),
+            Some("f") => {
+                let c: Vec<usize> = it.map(|t| t.parse::<usize>().unwrap() - 1).collect();
+                groups.last_mut().unwrap().1.push([verts[c[0]], verts[c[1]], verts[c[2]]]);
+            }
+            _ => {}
+        }
+    }
+    groups
 }
 
 /// The bases of `../shared/fixtures`, made outside the project, judged by SPEC §1's exact

@@ -457,6 +457,8 @@ pub struct ValidateJob {
     pub base: PathBuf,
     pub json: Option<PathBuf>,
     pub fold_image: Option<PathBuf>,
+    /// Where to write the failing dense triangles as an OBJ (`--failures`).
+    pub failures: Option<PathBuf>,
     /// Atlas size in texels (the fold image and the per-face coverage).
     pub resolution: u32,
     /// Mode, dmax, strictness and preparation: each from its flag, else from BASE's settings.
@@ -543,6 +545,7 @@ pub fn validate(job: &ValidateJob) -> Result<ValidateReport, Error> {
     let mut outs = Vec::new();
     outs.extend(job.json.as_deref().map(|p| ("the report", p)));
     outs.extend(job.fold_image.as_deref().map(|p| ("the fold image", p)));
+    outs.extend(job.failures.as_deref().map(|p| ("the failures mesh", p)));
     check_outputs(&[&job.high, &job.base], &outs)?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(job.threads.unwrap_or(0))
@@ -643,19 +646,48 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
         warnings,
         time_s: t0.elapsed().as_secs_f64(),
     };
+    let mut files: Vec<(&std::path::Path, Vec<u8>)> = Vec::new();
     if let Some(p) = &job.fold_image {
-        write_atomic(p, &fold.to_png())?;
+        files.push((p, fold.to_png()));
+    }
+    if let Some(p) = &job.failures {
+        files.push((p, mesh::maybe_gzip(p, failures_obj(&report, &high).into_bytes())));
     }
     if let Some(p) = &job.json {
-        let json = serde_json::to_string_pretty(&report).expect("report serialises");
-        if let Err(e) = write_atomic(p, json.as_bytes()) {
-            if let Some(img) = &job.fold_image {
-                let _ = std::fs::remove_file(img);
-            }
-            return Err(e);
-        }
+        files.push((p, serde_json::to_string_pretty(&report).expect("report serialises").into_bytes()));
     }
+    mesh::write_all_atomic(&files.iter().map(|(p, b)| (*p, b.as_slice())).collect::<Vec<_>>())?;
     Ok(report)
+}
+
+/// `validate --failures`: the scan's failing triangles as an OBJ in its own coordinates, one
+/// object per kind — `flipped`, `torn` (with `--fine-loops`, those only the finer walk finds
+/// too), `unmapped` (every triangle with an unmapped corner) — to open over the scan and see
+/// where BASE fails. A valid base gives a file with its header only.
+fn failures_obj(report: &ValidateReport, high: &mesh::DenseMesh) -> String {
+    let v = &report.verdict;
+    let mut is_unmapped = vec![false; high.positions.len()];
+    for &u in &v.failing.unmapped {
+        is_unmapped[u as usize] = true;
+    }
+    let around_unmapped: Vec<u32> =
+        (0..high.faces.len() as u32).filter(|&f| high.faces[f as usize].iter().any(|&u| is_unmapped[u as usize])).collect();
+    let header = format!(
+        "dispdec validate: the triangles of {} where {} fails ({})\n{} flipped, {} torn, {} around {} unmapped vertices; one object per kind, in the scan's coordinates",
+        report.high,
+        report.base,
+        if v.valid { "VALID: none" } else { "INVALID" },
+        v.failing.flipped.len(),
+        v.failing.torn.len(),
+        around_unmapped.len(),
+        v.failing.unmapped.len(),
+    );
+    mesh::obj_groups(
+        &high.positions,
+        &high.faces,
+        &[("flipped", &v.failing.flipped), ("torn", &v.failing.torn), ("unmapped", &around_unmapped)],
+        &header,
+    )
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -522,6 +522,40 @@ pub fn obj_with_uvs(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3]], 
     obj_text(positions, normals, faces, Some(&uv), header)
 }
 
+/// An OBJ of some of a mesh's faces, one object (`o name`) per group in the order given (an
+/// empty group is left out), with only the vertices those faces use, in the order first used.
+/// Blender and MeshLab open each group as an object of its own, in the mesh's coordinates, so
+/// that it lies on the mesh it was taken from.
+pub fn obj_groups(positions: &[DVec3], faces: &[[u32; 3]], groups: &[(&str, &[u32])], header: &str) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    for line in header.lines().filter(|l| !l.is_empty()) {
+        let _ = writeln!(s, "# {}", line.trim_start_matches('#').trim_start());
+    }
+    let mut index = vec![u32::MAX; positions.len()];
+    let mut used = 0u32;
+    for &(_, list) in groups {
+        for &f in list {
+            for v in faces[f as usize] {
+                if index[v as usize] == u32::MAX {
+                    index[v as usize] = used;
+                    used += 1;
+                    let p = positions[v as usize];
+                    let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);
+                }
+            }
+        }
+    }
+    for &(name, list) in groups.iter().filter(|g| !g.1.is_empty()) {
+        let _ = writeln!(s, "o {name}");
+        for &f in list {
+            let [a, b, c] = faces[f as usize].map(|v| index[v as usize] + 1);
+            let _ = writeln!(s, "f {a} {b} {c}");
+        }
+    }
+    s
+}
+
 fn obj_text(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3]], uv: Option<&dyn Fn(u32, usize) -> (f64, f64)>, header: &str) -> String {
     use std::fmt::Write;
     let mut s = String::with_capacity(96 * (positions.len() + faces.len()));
@@ -587,6 +621,33 @@ pub fn maybe_gzip(path: &Path, bytes: Vec<u8>) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Two groups of a strip of four triangles; vertex 5 is used by no group's face.
+    ///
+    /// ```text
+    ///   3-----4-----5
+    ///   | \ 1 | \ 3 |
+    ///   | 0 \ | 2 \ |
+    ///   0-----1-----2
+    /// ```
+    #[test]
+    fn obj_groups_keeps_only_the_vertices_its_faces_use() {
+        let positions: Vec<DVec3> = [(0., 0.), (1., 0.), (2., 0.), (0., 1.), (1., 1.), (2., 1.)].map(|(x, y)| DVec3::new(x, y, 0.0)).to_vec();
+        let faces = [[0, 1, 3], [1, 4, 3], [1, 2, 4], [2, 5, 4]];
+        let text = obj_groups(&positions, &faces, &[("torn", &[2, 0]), ("none", &[]), ("flipped", &[1])], "two kinds\n");
+        let want = "# two kinds\nv 1 0 0\nv 2 0 0\nv 1 1 0\nv 0 0 0\nv 0 1 0\no torn\nf 1 2 3\nf 4 1 5\no flipped\nf 1 3 5\n";
+        assert_eq!(text, want);
+        // Read back as a mesh: the same triangles, in the scan's coordinates.
+        let dir = std::env::temp_dir().join(format!("dispdec-groups-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("g.obj");
+        std::fs::write(&p, &text).unwrap();
+        let m = load_raw(&p).unwrap();
+        assert_eq!(m.faces.len(), 3);
+        let corner = |f: usize, k: usize| m.positions[m.faces[f][k] as usize];
+        assert_eq!((corner(0, 0), corner(1, 0), corner(2, 2)), (positions[1], positions[0], positions[3]));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn atomic_write_keeps_special_files() {

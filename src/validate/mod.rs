@@ -54,6 +54,11 @@ pub struct Verdict {
     /// Internal indices of the first flipped and torn dense faces.
     pub first_flipped: Vec<u32>,
     pub first_torn: Vec<u32>,
+    /// Every failing vertex and face (internal indices), not only the first: what
+    /// `validate --failures` draws. Not in the JSON report (a broken base can fail on most of
+    /// the scan).
+    #[serde(skip)]
+    pub failing: Failing,
     /// Judged by brute force (`--exhaustive`).
     pub exhaustive: bool,
     /// Positive loops walked again at 8 and 64 pieces an edge (`--fine-loops`; what that
@@ -68,6 +73,15 @@ pub struct Verdict {
     pub first_exempt_edges: Vec<(u32, u32)>,
     /// Jump edges and the largest jump (SPEC §1), straddling triangles and their charts.
     pub checks: CheckStats,
+}
+
+/// Every unmapped dense vertex and every flipped and torn dense face of a verdict, in index
+/// order (internal indices).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Failing {
+    pub unmapped: Vec<u32>,
+    pub flipped: Vec<u32>,
+    pub torn: Vec<u32>,
 }
 
 /// A base mesh ready for point searches over the whole of it: its BVH and every face's search
@@ -460,9 +474,10 @@ pub fn validate_on(
         max_abs_d: mapped_d.iter().map(|d| d.abs()).fold(0.0, f64::max),
         rms_d,
         dmax,
-        first_unmapped: unmapped.into_iter().take(10).collect(),
-        first_flipped: flipped.into_iter().take(10).collect(),
-        first_torn: torn.into_iter().take(10).collect(),
+        first_unmapped: unmapped.iter().copied().take(10).collect(),
+        first_flipped: flipped.iter().copied().take(10).collect(),
+        first_torn: torn.iter().copied().take(10).collect(),
+        failing: Failing { unmapped, flipped, torn },
         exhaustive: opts.exhaustive,
         fine_loops: opts.sampling == LoopSampling::Fine,
         checks,
