@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Regenerates README's "Quadric-error bases" table and the fold images in data/figures: the
 # bunny and horse bases of scripts/results.sh (run it first) against meshoptimizer bases of the
-# same face count, each judged by `dispdec validate` at the default 1024² fold image.
+# same face count, each judged by `dispdec validate` at the default 1024² fold image; each
+# base's failing triangles go to RESULTS_DIR/SCAN-KIND-failures.obj, and those of the bunny's
+# meshoptimizer base, drawn over the scan, to data/figures/bunny-qem-failures.png.
 #   bash scripts/validation-table.sh [RESULTS_DIR]   (default target/results)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -16,7 +18,8 @@ for scan in bunny horse; do
   target/release/examples/qem "$data/$scan.ply.gz" "$faces" "$res/$scan-qem.obj" >/dev/null
   for kind in dispdec meshoptimizer; do
     if [ $kind = dispdec ]; then base=$res/$scan.obj; img=data/figures/$scan-fold.png; else base=$res/$scan-qem.obj; img=data/figures/$scan-qem-fold.png; fi
-    "$bin" validate "$data/$scan.ply.gz" "$base" --backend cpu --json "$res/$scan-$kind-v.json" --fold-image "$img" --quiet || true
+    "$bin" validate "$data/$scan.ply.gz" "$base" --backend cpu --json "$res/$scan-$kind-v.json" --fold-image "$img" \
+      --failures "$res/$scan-$kind-failures.obj" --quiet || true
     python3 - "$res/$scan-$kind-v.json" "$scan, $kind" <<'PY'
 import json, sys
 r = json.load(open(sys.argv[1])); v = r["verdict"]
@@ -24,3 +27,5 @@ print(f"| {sys.argv[2]} | {r['base_faces']} | {v['unmapped']} | {v['flipped']} |
 PY
   done
 done
+NODEVICE_SELECT=1 "$bin" render "$data/bunny.ply.gz" "$res/bunny-qem.obj" --mark "$res/bunny-meshoptimizer-failures.obj" \
+  --yaw 180 --size 400 -o data/figures/bunny-qem-failures.png --quiet

@@ -5,13 +5,15 @@
 struct VsOut {
     @builtin(position) pos: vec4<f32>,
     @location(0) normal: vec3<f32>,
+    @location(1) color: vec3<f32>,
 };
 
 @vertex
-fn vs_main(@location(0) position: vec3<f32>, @location(1) normal: vec3<f32>) -> VsOut {
+fn vs_main(@location(0) position: vec3<f32>, @location(1) normal: vec3<f32>, @location(2) color: vec3<f32>) -> VsOut {
     var out: VsOut;
     out.pos = vec4<f32>(position, 1.0);
     out.normal = normal;
+    out.color = color;
     return out;
 }
 
@@ -19,6 +21,5 @@ fn vs_main(@location(0) position: vec3<f32>, @location(1) normal: vec3<f32>) -> 
 fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
     let light = normalize(vec3<f32>(0.35, 0.55, 0.75));
     let k = abs(dot(normalize(in.normal), light));
-    let albedo = vec3<f32>(0.74, 0.77, 0.84);
-    return vec4<f32>(albedo * (0.18 + 0.82 * k), 1.0);
+    return vec4<f32>(in.color * (0.18 + 0.82 * k), 1.0);
 }

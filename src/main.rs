@@ -338,6 +338,10 @@ enum Cmd {
         /// Then tilt about the horizontal axis (degrees).
         #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
         pitch: f64,
+        /// Draw this OBJ's triangles in red over the first mesh, in its coordinates: the
+        /// output of `validate --failures` over the scan shows where a base fails.
+        #[arg(long, value_name = "F.obj")]
+        mark: Option<PathBuf>,
     },
     /// Generate a scan-like sample mesh (bumps, a thin fin, an overhang, an open boundary).
     Sample {
@@ -654,8 +658,8 @@ fn run(cli: Cli) -> Result<i32> {
             ));
             Ok(0)
         }
-        Cmd::Render { meshes, output, size, yaw, pitch } => {
-            let adapter = dispdec::app::run::render(&meshes, &output, dispdec::gpu::render::View { size, yaw, pitch })?;
+        Cmd::Render { meshes, output, size, yaw, pitch, mark } => {
+            let adapter = dispdec::app::run::render(&meshes, mark.as_deref(), &output, dispdec::gpu::render::View { size, yaw, pitch })?;
             say.line(&format!("wrote {} ({} meshes, {adapter})", output.display(), meshes.len()));
             Ok(0)
         }

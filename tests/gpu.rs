@@ -17,10 +17,10 @@ fn wgsl_parses_and_validates() {
     naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
         .validate(&module)
         .expect("render.wgsl validates");
-    // The vertex entry point reads two vec3<f32> at locations 0 and 1, which is exactly the
-    // #[repr(C)] Vertex (two [f32; 3], 24 bytes, normal at offset 12).
+    // The vertex entry point reads three vec3<f32> at locations 0, 1 and 2, which is exactly
+    // the #[repr(C)] Vertex (three [f32; 3], 36 bytes, normal at offset 12, colour at 24).
     let vs = module.entry_points.iter().find(|e| e.name == "vs_main").expect("vs_main");
-    assert_eq!(vs.function.arguments.len(), 2);
+    assert_eq!(vs.function.arguments.len(), 3);
     for (i, arg) in vs.function.arguments.iter().enumerate() {
         assert!(
             matches!(arg.binding, Some(naga::Binding::Location { location, .. }) if location == i as u32),
@@ -31,8 +31,9 @@ fn wgsl_parses_and_validates() {
         assert_eq!(ty, &naga::TypeInner::Vector { size: naga::VectorSize::Tri, scalar: naga::Scalar::F32 });
         assert_eq!(ty.size(module.to_ctx()), 12);
     }
-    assert_eq!(std::mem::size_of::<Vertex>(), 24);
+    assert_eq!(std::mem::size_of::<Vertex>(), 36);
     assert_eq!(std::mem::offset_of!(Vertex, normal), 12);
+    assert_eq!(std::mem::offset_of!(Vertex, color), 24);
 }
 
 #[test]
@@ -51,8 +52,20 @@ fn renders_meshes_side_by_side_on_vulkan() {
     let (sv, sf) = icosphere(3);
     let meshes = vec![(iv, if_), (sv.iter().map(|&p| bumpy(p)).collect(), sf)];
     let view = dispdec::gpu::render::View { size: 96, yaw: 20.0, pitch: 15.0 };
-    let (w, h, rgba) = dispdec::gpu::render::render(&gpu, &meshes, &view).unwrap();
+    let (w, h, rgba) = dispdec::gpu::render::render(&gpu, &meshes, None, &view).unwrap();
     assert_eq!((w, h), (192, 96));
+    let red = |rgba: &[u8], slot: u32| {
+        (0..96u32).flat_map(|y| (slot * 96..(slot + 1) * 96).map(move |x| 4 * (y * w + x) as usize)).filter(|&i| rgba[i] as u32 > 2 * (rgba[i + 2] as u32).max(8)).count()
+    };
+    assert_eq!((red(&rgba, 0), red(&rgba, 1)), (0, 0), "nothing is red unmarked");
+    // Marks: the icosahedron's own faces, drawn in red over it (the first slot) and only there.
+    // The faces facing the camera cover part of it, whatever the depth test's ties.
+    let (iv, if_) = icosahedron();
+    let marks = (iv, if_[..10].to_vec());
+    let (_, _, marked) = dispdec::gpu::render::render(&gpu, &meshes, Some(&marks), &view).unwrap();
+    let (r0, r1) = (red(&marked, 0), red(&marked, 1));
+    assert!(r0 > 96 * 96 / 10, "{r0} red pixels over the first mesh");
+    assert_eq!(r1, 0, "the second slot is not marked");
     // Each slot has a white background border and shaded (non-white, not black) pixels.
     for slot in 0..2u32 {
         let mut shaded = 0;

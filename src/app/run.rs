@@ -973,14 +973,18 @@ pub fn export(base: &std::path::Path, disp: &std::path::Path, out: &std::path::P
 // dispdec render
 
 /// `dispdec render MESH... -o VIEW.png`: returns the adapter used.
-pub fn render(meshes: &[PathBuf], out: &std::path::Path, view: crate::gpu::render::View) -> Result<String, Error> {
+/// Renders the meshes side by side into `out`; `mark`'s triangles (`validate --failures`' OBJ)
+/// in red over the first.
+pub fn render(meshes: &[PathBuf], mark: Option<&std::path::Path>, out: &std::path::Path, view: crate::gpu::render::View) -> Result<String, Error> {
     if meshes.is_empty() {
         return Err(Error::Usage("render needs at least one mesh".into()));
     }
     if !(16..=4096).contains(&view.size) {
         return Err(Error::Usage(format!("--size must be between 16 and 4096, got {}", view.size)));
     }
-    check_outputs(&meshes.iter().map(PathBuf::as_path).collect::<Vec<_>>(), &[("the picture", out)])?;
+    let mut inputs: Vec<&std::path::Path> = meshes.iter().map(PathBuf::as_path).collect();
+    inputs.extend(mark);
+    check_outputs(&inputs, &[("the picture", out)])?;
     let mut loaded = Vec::new();
     for p in meshes {
         if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb")) {
@@ -992,8 +996,16 @@ pub fn render(meshes: &[PathBuf], out: &std::path::Path, view: crate::gpu::rende
             loaded.push((b.positions, b.faces));
         }
     }
+    // (A valid base's failures, a header alone, mark nothing.)
+    let marks = match mark {
+        Some(p) => {
+            let m = mesh::load_raw(p)?;
+            Some((m.positions, m.faces))
+        }
+        None => None,
+    };
     let gpu = crate::gpu::Gpu::open_primary()?;
-    let (w, h, rgba) = crate::gpu::render::render(&gpu, &loaded, &view)?;
+    let (w, h, rgba) = crate::gpu::render::render(&gpu, &loaded, marks.as_ref(), &view)?;
     write_atomic(out, &crate::gpu::render::png_rgba(w, h, &rgba))?;
     Ok(gpu.describe())
 }

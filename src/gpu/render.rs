@@ -7,13 +7,20 @@ use glam::{DMat3, DVec3};
 /// WGSL of the render pipeline.
 pub const RENDER_WGSL: &str = include_str!("../../shaders/render.wgsl");
 
-/// One vertex as the shader reads it: clip-space position and the face normal.
+/// One vertex as the shader reads it: clip-space position, the face normal and the albedo.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Vertex {
     pub position: [f32; 3],
     pub normal: [f32; 3],
+    pub color: [f32; 3],
 }
+
+/// The meshes' albedo: a light blue-grey.
+pub const MESH_COLOR: [f32; 3] = [0.74, 0.77, 0.84];
+
+/// The albedo of marked triangles (`render --mark`): red, as the fold image's holes.
+pub const MARK_COLOR: [f32; 3] = [0.9, 0.08, 0.06];
 
 /// Camera and image options.
 #[derive(Clone, Copy, Debug)]
@@ -25,38 +32,56 @@ pub struct View {
     pub pitch: f64,
 }
 
-/// Flat-shaded vertices of every mesh, fitted into its slot (slots left to right).
-pub fn layout(meshes: &[(Vec<DVec3>, Vec<[u32; 3]>)], view: &View) -> Vec<Vertex> {
+/// Flat-shaded vertices of every mesh, fitted into its slot (slots left to right), then those
+/// of `marks` in red, fitted as the first mesh is (so that triangles taken from it lie exactly
+/// on it: drawn last at the same depth, they win the depth test).
+pub fn layout(meshes: &[(Vec<DVec3>, Vec<[u32; 3]>)], marks: Option<&(Vec<DVec3>, Vec<[u32; 3]>)>, view: &View) -> Vec<Vertex> {
     let rot = DMat3::from_rotation_x(view.pitch.to_radians()) * DMat3::from_rotation_y(view.yaw.to_radians());
     let n = meshes.len().max(1) as f64;
     let mut out = Vec::new();
-    for (i, (pos, faces)) in meshes.iter().enumerate() {
-        let p: Vec<DVec3> = pos.iter().map(|&q| rot * q).collect();
+    // Slot i's fit of the rotated points `p` into clip space.
+    let frame = |i: usize, p: &[DVec3]| {
         let lo = p.iter().fold(DVec3::splat(f64::INFINITY), |a, &b| a.min(b));
         let hi = p.iter().fold(DVec3::splat(f64::NEG_INFINITY), |a, &b| a.max(b));
         let c = 0.5 * (lo + hi);
         let r = (0.5 * (hi - lo)).max_element().max(1e-12);
         let depth = 0.5 * (hi - lo).length().max(1e-12);
-        let fit = |q: DVec3| -> [f32; 3] {
+        move |q: DVec3| -> [f32; 3] {
             let l = (q - c) / r * 0.92;
             [(((i as f64 + 0.5 + 0.5 * l.x) / n) * 2.0 - 1.0) as f32, l.y as f32, (0.5 - 0.45 * (q.z - c.z) / depth) as f32]
-        };
+        }
+    };
+    let push = |out: &mut Vec<Vertex>, p: &[DVec3], faces: &[[u32; 3]], fit: &dyn Fn(DVec3) -> [f32; 3], color: [f32; 3]| {
         for f in faces {
             let t = f.map(|v| p[v as usize]);
             let nrm = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
             for q in t {
-                out.push(Vertex { position: fit(q), normal: [nrm.x as f32, nrm.y as f32, nrm.z as f32] });
+                out.push(Vertex { position: fit(q), normal: [nrm.x as f32, nrm.y as f32, nrm.z as f32], color });
             }
         }
+    };
+    let mut first_fit = None;
+    for (i, (pos, faces)) in meshes.iter().enumerate() {
+        let p: Vec<DVec3> = pos.iter().map(|&q| rot * q).collect();
+        let fit = frame(i, &p);
+        push(&mut out, &p, faces, &fit, MESH_COLOR);
+        if i == 0 {
+            first_fit = Some(fit);
+        }
+    }
+    if let (Some((pos, faces)), Some(fit)) = (marks, first_fit) {
+        let p: Vec<DVec3> = pos.iter().map(|&q| rot * q).collect();
+        push(&mut out, &p, faces, &fit, MARK_COLOR);
     }
     out
 }
 
 /// Renders the meshes into an RGBA8 image (width = size × meshes, height = size).
-pub fn render(gpu: &Gpu, meshes: &[(Vec<DVec3>, Vec<[u32; 3]>)], view: &View) -> Result<(u32, u32, Vec<u8>), GpuError> {
+/// `marks` (if any) are drawn in red over the first mesh ([`layout`]).
+pub fn render(gpu: &Gpu, meshes: &[(Vec<DVec3>, Vec<[u32; 3]>)], marks: Option<&(Vec<DVec3>, Vec<[u32; 3]>)>, view: &View) -> Result<(u32, u32, Vec<u8>), GpuError> {
     let (w, h) = (view.size * meshes.len().max(1) as u32, view.size);
     let device = &gpu.device;
-    let verts = layout(meshes, view);
+    let verts = layout(meshes, marks, view);
     let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some("render.wgsl"),
         source: wgpu::ShaderSource::Wgsl(RENDER_WGSL.into()),
@@ -74,7 +99,7 @@ pub fn render(gpu: &Gpu, meshes: &[(Vec<DVec3>, Vec<[u32; 3]>)], view: &View) ->
         immediate_size: 0,
     });
     let format = wgpu::TextureFormat::Rgba8Unorm;
-    let attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3];
+    let attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x3];
     let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
         label: Some("render"),
         layout: Some(&layout),
@@ -92,7 +117,9 @@ pub fn render(gpu: &Gpu, meshes: &[(Vec<DVec3>, Vec<[u32; 3]>)], view: &View) ->
         depth_stencil: Some(wgpu::DepthStencilState {
             format: wgpu::TextureFormat::Depth32Float,
             depth_write_enabled: Some(true),
-            depth_compare: Some(wgpu::CompareFunction::Less),
+            // LessEqual: a marked triangle, drawn after the mesh it was taken from at the same depth,
+            // covers it.
+            depth_compare: Some(wgpu::CompareFunction::LessEqual),
             stencil: Default::default(),
             bias: Default::default(),
         }),
