@@ -513,7 +513,7 @@ fn run(cli: Cli) -> Result<i32> {
                 r.dmax
             ));
             if !(r.recheck.valid && r.global.valid) {
-                eprintln!("dispdec: the final check of the guarantee failed; outputs are written, see the report");
+                eprintln!("dispdec: the final check of the guarantee failed; outputs are written, see the report (`dispdec validate SCAN BASE --failures F.obj` writes where it fails)");
                 return Ok(1);
             }
             Ok(0)
@@ -592,6 +592,11 @@ fn run(cli: Cli) -> Result<i32> {
             ));
             for f in r.first_failures.iter().take(10) {
                 say.line(&format!("  {} {} at ({:.5}, {:.5}, {:.5})", f.kind, f.index, f.position[0], f.position[1], f.position[2]));
+            }
+            match &job.failures {
+                Some(p) => say.line(&format!("wrote {} (the failing triangles, one object per kind)", p.display())),
+                None if !v.valid => say.line("  (every failing triangle, to open over the scan: --failures F.obj)"),
+                None => {}
             }
             Ok(if v.valid { 0 } else { 1 })
         }
