@@ -456,7 +456,7 @@ fn run(cli: Cli) -> Result<i32> {
                         NearRuleArg::Box => NearRule::Box,
                         NearRuleArg::Triangles => NearRule::Triangles,
                     },
-                    loops: if fine_loops { dispdec::guarantee::LoopSampling::Fine } else { dispdec::guarantee::LoopSampling::Sampled },
+                    loops: dispdec::guarantee::LoopSampling::fine_if(fine_loops),
                 },
                 threads,
                 progress: !say.quiet && std::io::stderr().is_terminal(),

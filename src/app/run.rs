@@ -318,7 +318,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         scan: job.input.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default(),
         scan_faces: state.dense.faces.len(),
         preparation: job.preparation,
-        fine_loops: job.options.loops == crate::guarantee::LoopSampling::Fine,
+        fine_loops: job.options.loops.is_fine(),
     };
     let header = format!(
         "dispdec base mesh: {} faces from {} ({} normals{})\nvn are the directions N used by the displacement map\n{}",
@@ -382,7 +382,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         max_valence: job.options.max_valence,
         batch: job.options.batch,
         near_rule: job.options.near,
-        fine_loops: job.options.loops == crate::guarantee::LoopSampling::Fine,
+        fine_loops: job.options.loops.is_fine(),
         threads: rayon::current_num_threads(),
         dmax: state.dmax,
         max_abs_d: recheck.max_abs_d,
@@ -592,11 +592,7 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
         exhaustive: job.exhaustive,
         compare_chords: true,
         // `--fine-loops`, or a base made with it: judged as it was made.
-        sampling: if job.fine_loops || loaded.settings.as_ref().is_some_and(|s| s.fine_loops) {
-            crate::guarantee::LoopSampling::Fine
-        } else {
-            crate::guarantee::LoopSampling::Sampled
-        },
+        sampling: crate::guarantee::LoopSampling::fine_if(job.fine_loops || loaded.settings.as_ref().is_some_and(|s| s.fine_loops)),
     };
     let (verdict, maps) = crate::validate::validate_on(&dense, b, &check, gpu.as_ref().map(|g| g as &dyn crate::validate::Project))?;
     let fold = crate::maps::fold::fold_image(&dense, b, &maps, normals, dmax, job.resolution);

@@ -1222,11 +1222,7 @@ fn face_loop<C: MapContext>(
     let mut torn = false;
     // Where the walks at this depth are shared, the corners' loop samples, made once for the
     // three edges.
-    let shared = match min_depth {
-        0 => sc.shared.is_some(),
-        d => d == REFINE_DEPTHS[0] && sc.shared_fine.is_some(),
-    };
-    let corners = shared.then(|| m.map(|mk| loop_sample(ctx, mk)));
+    let corners = sc.table_at(min_depth).is_some().then(|| m.map(|mk| loop_sample(ctx, mk)));
     for k in 0..3 {
         let (a, b) = (fv[k], fv[(k + 1) % 3]);
         let (ka, kb) = (k, (k + 1) % 3);
@@ -1297,7 +1293,7 @@ fn edge_torn<C: MapContext>(ctx: &C, dense: &DenseData, a: u32, b: u32, sc: &mut
     if j > 0.0 {
         return Some(true);
     }
-    if ctx.loop_sampling() == LoopSampling::Fine {
+    if ctx.loop_sampling().is_fine() {
         return Some(edge_jump_at(ctx, dense, a, b, REFINE_DEPTHS[0], sc)? > 0.0);
     }
     Some(false)
@@ -1410,22 +1406,34 @@ pub struct CheckScratch {
 }
 
 impl CheckScratch {
+    /// The shared walks at `min_depth`: [`CheckScratch::shared`] at 0,
+    /// [`CheckScratch::shared_fine`] at the first of [`REFINE_DEPTHS`], none at another depth.
+    fn table_at(&self, min_depth: u32) -> Option<&EdgeTable> {
+        walks_at(&self.shared, &self.shared_fine, min_depth)
+    }
+
     /// The image of edge (a, b) (a < b; `sa`, `sb` the ends' [`loop_sample`]s) walked at
     /// `min_depth` from the walked edges into `self.edge`, for a loop: the stored inner samples
     /// between the ends' samples. `None` where no walk at that depth is shared; otherwise the
     /// edge is continuous (jump 0).
     fn cached_edge(&mut self, min_depth: u32, (a, sa): (u32, Sample), (b, sb): (u32, Sample)) -> Option<f64> {
         let CheckScratch { shared, shared_fine, edge, .. } = self;
-        let table = match min_depth {
-            0 => shared.as_deref()?,
-            d if d == REFINE_DEPTHS[0] => shared_fine.as_deref()?,
-            _ => return None,
-        };
+        let table = walks_at(shared, shared_fine, min_depth)?;
         edge.clear();
         edge.push(sa);
         edge.extend_from_slice(table.inner((a, b)));
         edge.push(sb);
         Some(0.0)
+    }
+}
+
+/// [`CheckScratch::table_at`] over the scratch's two tables (a function of the fields, so that
+/// a caller can borrow the others beside it).
+fn walks_at<'a>(shared: &'a Option<std::sync::Arc<EdgeTable>>, shared_fine: &'a Option<std::sync::Arc<EdgeTable>>, min_depth: u32) -> Option<&'a EdgeTable> {
+    match min_depth {
+        0 => shared.as_deref(),
+        d if d == REFINE_DEPTHS[0] => shared_fine.as_deref(),
+        _ => None,
     }
 }
 
@@ -1480,6 +1488,20 @@ pub enum LoopSampling {
     /// base that passes as sampled; in `decimate`, every check of the run, so that its base
     /// passes that finer check; docs/exact-guarantee.md).
     Fine,
+}
+
+impl LoopSampling {
+    /// `Fine` where `--fine-loops` is on.
+    pub fn fine_if(on: bool) -> LoopSampling {
+        if on {
+            LoopSampling::Fine
+        } else {
+            LoopSampling::Sampled
+        }
+    }
+    pub fn is_fine(self) -> bool {
+        self == LoopSampling::Fine
+    }
 }
 
 /// Checks dense triangle `f`: continuity of its three edges, then the orientation of its image
@@ -1677,7 +1699,7 @@ pub fn check_faces<C: MapContext + Sync>(
     // With fine loops, every edge is walked at the first refine depth too (where every loop
     // that passes is walked again): once here, not once for each of its triangles. A tear
     // there tears every triangle of the edge, whatever its loop: the same verdicts.
-    let fine = ctx.loop_sampling() == LoopSampling::Fine;
+    let fine = ctx.loop_sampling().is_fine();
     let (walked, spent) = in_chunks(&walk, chunks(walk.len()), |chunk, out: &mut (EdgeTable, EdgeTable), sc: &mut CheckScratch, stop| {
         for &k in chunk {
             if stop() {

@@ -529,9 +529,7 @@ pub fn obj_with_uvs(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3]], 
 pub fn obj_groups(positions: &[DVec3], faces: &[[u32; 3]], groups: &[(&str, &[u32])], header: &str) -> String {
     use std::fmt::Write;
     let mut s = String::new();
-    for line in header.lines().filter(|l| !l.is_empty()) {
-        let _ = writeln!(s, "# {}", line.trim_start_matches('#').trim_start());
-    }
+    write_header(&mut s, header);
     let mut index = vec![u32::MAX; positions.len()];
     let mut used = 0u32;
     for &(_, list) in groups {
@@ -556,9 +554,9 @@ pub fn obj_groups(positions: &[DVec3], faces: &[[u32; 3]], groups: &[(&str, &[u3
     s
 }
 
-fn obj_text(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3]], uv: Option<&dyn Fn(u32, usize) -> (f64, f64)>, header: &str) -> String {
+/// An OBJ's header: each non-empty line of `header` as a comment (`# ` added where missing).
+fn write_header(s: &mut String, header: &str) {
     use std::fmt::Write;
-    let mut s = String::with_capacity(96 * (positions.len() + faces.len()));
     for line in header.lines().filter(|l| !l.is_empty()) {
         if line.starts_with('#') {
             let _ = writeln!(s, "{line}");
@@ -566,6 +564,12 @@ fn obj_text(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3]], uv: Opti
             let _ = writeln!(s, "# {line}");
         }
     }
+}
+
+fn obj_text(positions: &[DVec3], normals: &[DVec3], faces: &[[u32; 3]], uv: Option<&dyn Fn(u32, usize) -> (f64, f64)>, header: &str) -> String {
+    use std::fmt::Write;
+    let mut s = String::with_capacity(96 * (positions.len() + faces.len()));
+    write_header(&mut s, header);
     // Shortest round-trip decimal: reading the file back gives the very numbers checked.
     for p in positions {
         let _ = writeln!(s, "v {} {} {}", p.x, p.y, p.z);

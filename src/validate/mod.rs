@@ -479,7 +479,7 @@ pub fn validate_on(
         first_torn: torn.iter().copied().take(10).collect(),
         failing: Failing { unmapped, flipped, torn },
         exhaustive: opts.exhaustive,
-        fine_loops: opts.sampling == LoopSampling::Fine,
+        fine_loops: opts.sampling.is_fine(),
         checks,
         exempt_constant,
         exempt_edges: dense.exempt_edges.len(),
