@@ -13,6 +13,8 @@
 # serial parts —, longest first. A run whose report exists is not run again, so an interrupted
 # regeneration resumes. The whole set took 14.5 minutes on this 2-core machine on 2026-12-06
 # (the horse's constant-mode run alone 11.6 minutes; the VM's speed varies by tens of percent).
+# FLAGS is added to every run: FLAGS="--ring-directions keep" bash scripts/results.sh DIR
+# printed README's table of that rule (12 minutes, 2026-12-07).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=target/results
@@ -54,10 +56,11 @@ one() {
   shift 2
   [ -f "$out/$name.json" ] && return 0
   "$bin" decimate "$input" -o "$out/$name.obj" --map "$out/$name.map" --report "$out/$name.json" \
-    --backend cpu --threads 1 --quiet "$@" || echo "results.sh: $name failed (exit $?)" >&2
+    --backend cpu --threads 1 --quiet "$@" $FLAGS || echo "results.sh: $name failed (exit $?)" >&2
 }
 export -f one
-export out bin
+FLAGS=${FLAGS:-}
+export out bin FLAGS
 printf '%s\n' "${runs[@]}" | xargs -P "$lanes" -L 1 bash -c 'one "$@"' _
 python3 - "$out" "$readme" <<'PY'
 import json, sys, os

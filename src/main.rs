@@ -3,7 +3,7 @@
 
 use anyhow::Result;
 use clap::{Parser, Subcommand, ValueEnum};
-use dispdec::decimate::{NearRule, Options, DEFAULT_MAX_VALENCE};
+use dispdec::decimate::{NearRule, Options, RingDirections, DEFAULT_MAX_VALENCE};
 use dispdec::eval::NormalMode;
 use dispdec::app::run::{decimate, DecimateJob};
 use std::io::IsTerminal;
@@ -85,6 +85,21 @@ enum NearRuleArg {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
+enum RingArg {
+    /// SPEC §2: u and every vertex of the ring of u and w get new directions (region: 2-ring).
+    Recompute,
+    /// Only u does; the ring keeps its directions (region: the faces around u and w).
+    Keep,
+}
+
+fn ring_of(r: RingArg) -> RingDirections {
+    match r {
+        RingArg::Recompute => RingDirections::Recompute,
+        RingArg::Keep => RingDirections::Keep,
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum)]
 enum Backend {
     Cpu,
     Gpu,
@@ -139,6 +154,9 @@ enum Cmd {
         /// The round width of every run, as `decimate --batch`.
         #[arg(long, default_value_t = Options::default().batch)]
         batch: usize,
+        /// The direction rule of every run, as `decimate --ring-directions`.
+        #[arg(long, value_enum, default_value = "recompute")]
+        ring_directions: RingArg,
     },
     /// One run of `dispdec bench`, in a process of its own (so that its peak memory is its own):
     /// decimates INPUT into OUTPUT with default options (but the bench's `--batch`) and writes
@@ -152,6 +170,9 @@ enum Cmd {
         /// The round width (`decimate --batch`).
         #[arg(long, default_value_t = Options::default().batch)]
         batch: usize,
+        /// The direction rule (`decimate --ring-directions`).
+        #[arg(long, value_enum, default_value = "recompute")]
+        ring_directions: RingArg,
         /// Where the measurement goes (JSON).
         #[arg(long)]
         result: PathBuf,
@@ -208,6 +229,12 @@ enum Cmd {
         /// slower (README, The exact guarantee).
         #[arg(long)]
         fine_loops: bool,
+        /// Which base vertices a collapse gives a new direction: u and the ring of u and w
+        /// (recompute, SPEC §2: the test solves the edge's 2-ring again), or u alone (keep: the
+        /// ring keeps its directions, the test solves the faces around u and w; faster, and
+        /// the runs go further; README, Decisions).
+        #[arg(long, value_enum, default_value = "recompute")]
+        ring_directions: RingArg,
         #[command(flatten)]
         prep: PrepArgs,
         /// Write the scan as decimated (welded, repaired) to this OBJ (.obj or .obj.gz), so that
@@ -435,6 +462,7 @@ fn run(cli: Cli) -> Result<i32> {
             batch,
             near_rule,
             fine_loops,
+            ring_directions,
             prep,
             repaired,
         } => {
@@ -457,6 +485,7 @@ fn run(cli: Cli) -> Result<i32> {
                         NearRuleArg::Triangles => NearRule::Triangles,
                     },
                     loops: dispdec::guarantee::LoopSampling::fine_if(fine_loops),
+                    ring: ring_of(ring_directions),
                 },
                 threads,
                 progress: !say.quiet && std::io::stderr().is_terminal(),
@@ -668,7 +697,7 @@ fn run(cli: Cli) -> Result<i32> {
             say.line(&format!("wrote {} ({} meshes, {adapter})", output.display(), meshes.len()));
             Ok(0)
         }
-        Cmd::Bench { json, runs, data, meshes, configs, work, batch } => {
+        Cmd::Bench { json, runs, data, meshes, configs, work, batch, ring_directions } => {
             let data = data
                 .or_else(|| std::env::var_os("DISPDEC_DATA").map(PathBuf::from))
                 .unwrap_or_else(|| PathBuf::from("../shared/data"));
@@ -681,6 +710,7 @@ fn run(cli: Cli) -> Result<i32> {
                 exe: std::env::current_exe()?,
                 json: json.clone(),
                 batch,
+                ring: ring_of(ring_directions),
             };
             let report = dispdec::app::bench::bench(&job, |line| say.line(line))?;
             print!("{}", dispdec::app::bench::table(&report));
@@ -694,8 +724,8 @@ fn run(cli: Cli) -> Result<i32> {
             println!("{}", serde_json::to_string(&dispdec::app::run::ProbeAnswer::here())?);
             Ok(0)
         }
-        Cmd::BenchRun { input, output, config, batch, result } => {
-            let outcome = dispdec::app::bench::run_one(&input, &output, bench_config(config), batch);
+        Cmd::BenchRun { input, output, config, batch, ring_directions, result } => {
+            let outcome = dispdec::app::bench::run_one(&input, &output, bench_config(config), batch, ring_of(ring_directions));
             dispdec::mesh::write_atomic(&result, serde_json::to_string(&outcome)?.as_bytes())?;
             Ok(0)
         }

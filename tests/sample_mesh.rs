@@ -93,6 +93,43 @@ fn batch_one_is_the_serial_algorithm() {
     assert_eq!(outs[0], outs[1], "identical bytes across --threads 1 and 2");
 }
 
+/// `decimate --ring-directions keep` on the 6k sample (`dispdec sample --faces 6000 --seed 7`):
+/// a collapse gives only its kept vertex a new direction, so its test solves the faces around
+/// the edge, not the 2-ring. Measured (2026-12-07): the default 509 faces and 227 dense
+/// triangles checked per accepted collapse; keep 289 faces and 96 (0.42). Bounds: the faces
+/// within 5 % of the measured count, the triangles a collapse under 0.5 of the default's; the
+/// base valid; the same bytes on one and two threads.
+#[test]
+fn keeping_the_ring_directions_checks_fewer_triangles_for_a_valid_base() {
+    let dir = tempdir("sample-keep");
+    let scan = dir.join("scan.obj");
+    let o = run(&["sample", "--faces", "6000", "--seed", "7", "-o", scan.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(0));
+    let made = |name: &str, extra: &[&str]| {
+        let (obj, map, rep) = (dir.join(format!("{name}.obj")), dir.join(format!("{name}.map")), dir.join(format!("{name}.json")));
+        let mut args = vec!["decimate", scan.to_str().unwrap(), "-o", obj.to_str().unwrap(), "--map", map.to_str().unwrap(), "--report", rep.to_str().unwrap(), "--backend", "cpu", "-q"];
+        args.extend_from_slice(extra);
+        let o = run(&args);
+        assert_eq!(o.status.code(), Some(0), "{name}: {}", String::from_utf8_lossy(&o.stderr));
+        let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&rep).unwrap()).unwrap();
+        let per = r["collapses"]["stages"]["faces_checked"].as_f64().unwrap() / r["collapses"]["accepted"].as_f64().unwrap();
+        (r, per, (std::fs::read(&obj).unwrap(), std::fs::read(&map).unwrap()))
+    };
+    let (r, per_default, _) = made("default", &["--threads", "2"]);
+    assert_eq!(r["ring_directions"], "recompute");
+    assert_eq!(r["faces_out"], 509);
+    let (r, per_keep, bytes2) = made("keep2", &["--threads", "2", "--ring-directions", "keep"]);
+    assert_eq!(r["ring_directions"], "keep");
+    assert_eq!(r["global"]["valid"], true, "{}", r["global"]);
+    assert_eq!(r["recheck"]["valid"], true, "{}", r["recheck"]);
+    let faces = r["faces_out"].as_u64().unwrap();
+    println!("default: 509 faces, {per_default:.0} dense triangles checked a collapse; keep: {faces} faces, {per_keep:.0}");
+    assert!((275..=303).contains(&faces), "{faces} faces, 289 measured (±5 %)");
+    assert!(per_keep < 0.5 * per_default, "{per_keep:.0} dense triangles checked a collapse against {per_default:.0}");
+    let (_, _, bytes1) = made("keep1", &["--threads", "1", "--ring-directions", "keep"]);
+    assert!(bytes1 == bytes2, "the same base and map on one and two threads");
+}
+
 /// `decimate --fine-loops` on the 6k sample (`dispdec sample --faces 6000 --seed 7`, README's
 /// modes table): its base carries the scan walked at 8 pieces an edge, which the default run's
 /// base does not. Measured (2026-12-07): the default base, 509 faces, is valid as sampled and

@@ -342,6 +342,18 @@ fn decimate_and_validate_with_backend_gpu_match_cpu() {
     assert!(fine[0] == fine[1], "--backend gpu --fine-loops must write the CPU path's bytes");
     let o = run(&["validate", scan.to_str().unwrap(), dir.join("fine-gpu.obj").to_str().unwrap(), "--backend", "gpu", "--fine-loops", "--json", j.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+
+    // `--ring-directions keep` (a smaller region for every candidate): the same bytes on both
+    // paths too.
+    let mut kept = Vec::new();
+    for backend in ["cpu", "gpu"] {
+        let (b, m) = (dir.join(format!("keep-{backend}.obj")), dir.join(format!("keep-{backend}.map")));
+        let o = run(&["decimate", scan.to_str().unwrap(), "-o", b.to_str().unwrap(), "--map", m.to_str().unwrap(), "--backend", backend, "--ring-directions", "keep", "-q"]);
+        assert_eq!(o.status.code(), Some(0), "{backend} --ring-directions keep: {}", String::from_utf8_lossy(&o.stderr));
+        kept.push((std::fs::read(&b).unwrap(), std::fs::read(&m).unwrap()));
+    }
+    assert!(kept[0] == kept[1], "--backend gpu --ring-directions keep must write the CPU path's bytes");
+    assert!(kept[0] != bytes[0], "keeping the ring's directions makes another base");
 }
 
 /// Issue 11: on real scans the GPU path writes the CPU path's bytes — the bunny and the horse,

@@ -3,7 +3,7 @@
 //! a process of its own (so that its peak memory is its own), medians reported, with a
 //! quadric-error decimator (meshoptimizer) timed to the same face count as the reference.
 
-use crate::decimate::Options;
+use crate::decimate::{Options, RingDirections};
 use crate::app::run::{decimate, Backend, DecimateJob, Report};
 use crate::Error;
 use serde::{Deserialize, Serialize};
@@ -61,6 +61,8 @@ pub struct BenchJob {
     pub json: Option<PathBuf>,
     /// The round width every run decimates with (`--batch`; default 16).
     pub batch: usize,
+    /// The direction rule every run decimates with (`--ring-directions`).
+    pub ring: RingDirections,
 }
 
 /// One decimation as `dispdec bench-run` measures it, in its own process.
@@ -89,13 +91,13 @@ pub type RunOutcome = Result<RunResult, Error>;
 
 /// One measured decimation (the body of `dispdec bench-run`): `input` → `output` in `config`,
 /// default options but the round width.
-pub fn run_one(input: &Path, output: &Path, config: Config, batch: usize) -> RunOutcome {
+pub fn run_one(input: &Path, output: &Path, config: Config, batch: usize, ring: RingDirections) -> RunOutcome {
     let dj = DecimateJob {
         input: input.to_path_buf(),
         output: output.to_path_buf(),
         map: None,
         report: None,
-        options: Options { batch, ..Options::default() },
+        options: Options { batch, ring, ..Options::default() },
         threads: Some(if config == Config::Cpu1 { 1 } else { 0 }),
         progress: false,
         backend: if config == Config::Gpu { Backend::Gpu } else { Backend::Cpu },
@@ -135,6 +137,14 @@ impl RunResult {
 }
 
 /// Runs `dispdec bench-run` for one decimation in a child process and reads its outcome.
+/// The rule's name on the command line.
+fn ring_arg(r: RingDirections) -> &'static str {
+    match r {
+        RingDirections::Recompute => "recompute",
+        RingDirections::Keep => "keep",
+    }
+}
+
 fn measure(job: &BenchJob, input: &Path, output: &Path, config: Config) -> Result<RunOutcome, Error> {
     let result = output.with_extension("run.json");
     let _ = std::fs::remove_file(&result);
@@ -142,7 +152,8 @@ fn measure(job: &BenchJob, input: &Path, output: &Path, config: Config) -> Resul
         .arg("bench-run")
         .arg(input)
         .arg(output)
-        .args(["--config", config.arg(), "--batch", &job.batch.to_string(), "--result"])
+        .args(["--config", config.arg(), "--batch", &job.batch.to_string()])
+        .args(["--ring-directions", ring_arg(job.ring), "--result"])
         .arg(&result)
         .stdin(std::process::Stdio::null())
         .stdout(std::process::Stdio::null())
@@ -254,6 +265,8 @@ pub struct BenchReport {
     pub runs: usize,
     /// The round width of every run (`--batch`).
     pub batch: usize,
+    /// The direction rule of every run (`--ring-directions`).
+    pub ring_directions: RingDirections,
     pub rows: Vec<Row>,
     /// Configurations that could not run here, and why.
     pub skipped: Vec<String>,
@@ -416,7 +429,7 @@ pub fn bench(job: &BenchJob, mut progress: impl FnMut(&str)) -> Result<BenchRepo
             });
         }
     }
-    Ok(BenchReport { machine: machine_name(), cores, runs: job.runs.max(1), batch: job.batch, rows, skipped })
+    Ok(BenchReport { machine: machine_name(), cores, runs: job.runs.max(1), batch: job.batch, ring_directions: job.ring, rows, skipped })
 }
 
 /// The table `dispdec bench` prints (Markdown, so that the README can show it as is).
@@ -424,6 +437,9 @@ pub fn table(r: &BenchReport) -> String {
     let mut s = format!("machine: {}; median of {} run(s) each", r.machine, r.runs);
     if r.batch != Options::default().batch {
         s += &format!("; --batch {}", r.batch);
+    }
+    if r.ring_directions != RingDirections::default() {
+        s += &format!("; --ring-directions {}", ring_arg(r.ring_directions));
     }
     s += "\n\n";
     s += "| mesh | faces in | path | faces out | total s | evaluate s (in kernels) | pick+commit s | checks s | peak MB (B/face) | band | meshopt ms | × meshopt |\n";

@@ -184,6 +184,8 @@ pub struct Report {
     pub near_rule: crate::decimate::NearRule,
     /// `--fine-loops`: every check walked positive loops again at 8 pieces an edge.
     pub fine_loops: bool,
+    /// `--ring-directions`: which base vertices a collapse gave a new direction.
+    pub ring_directions: crate::decimate::RingDirections,
     pub threads: usize,
     pub dmax: f64,
     pub max_abs_d: f64,
@@ -383,6 +385,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         batch: job.options.batch,
         near_rule: job.options.near,
         fine_loops: job.options.loops.is_fine(),
+        ring_directions: job.options.ring,
         threads: rayon::current_num_threads(),
         dmax: state.dmax,
         max_abs_d: recheck.max_abs_d,

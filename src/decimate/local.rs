@@ -56,6 +56,9 @@ impl Snapshot {
             for &v in &verts {
                 if let Some(i) = changed_idx(v) {
                     crosses[i].push(cr);
+                } else if verts.contains(&c.u) && self.mode == NormalMode::Interpolated && self.dir[v as usize].dot(cr) <= 0.0 {
+                    // A ring vertex keeps its direction: it must still lean with its faces.
+                    return Err(Reject::Foldover);
                 }
             }
             post.push((f, verts, pos));
@@ -930,6 +933,7 @@ impl MapContext for CandidateContext<'_> {
         }
         let mut s = Vec::new();
         self.st.topo.faces_around(v, &mut s, out);
+        out.retain(|&f| f != self.c.removed[0] && f != self.c.removed[1]);
     }
     fn jump_depth(&self) -> u32 {
         crate::guarantee::check::CANDIDATE_JUMP_DEPTH
