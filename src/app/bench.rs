@@ -136,7 +136,6 @@ impl RunResult {
     }
 }
 
-/// Runs `dispdec bench-run` for one decimation in a child process and reads its outcome.
 /// The rule's name on the command line.
 fn ring_arg(r: RingDirections) -> &'static str {
     match r {
@@ -145,6 +144,7 @@ fn ring_arg(r: RingDirections) -> &'static str {
     }
 }
 
+/// Runs `dispdec bench-run` for one decimation in a child process and reads its outcome.
 fn measure(job: &BenchJob, input: &Path, output: &Path, config: Config) -> Result<RunOutcome, Error> {
     let result = output.with_extension("run.json");
     let _ = std::fs::remove_file(&result);

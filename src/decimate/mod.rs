@@ -1070,13 +1070,14 @@ mod tests {
 
     #[test]
     fn keeping_the_ring_directions_gathers_the_faces_around_the_edge_only() {
-        // An interior edge u ═ w of the grid (u at (2, 2), w at (3, 2)); its ring r:
+        // An interior edge u ═ w of the grid (u at (2, 2), w at (3, 2)), its ring r and the
+        // 10 faces around the edge:
         //
-        //     r───r───r
-        //     │ ╲ │ ╲ │ ╲
-        //     r───u═══w───r      recompute: u and every r get new directions, the region
-        //     ╲ │ ╲ │ ╲ │        is every face around u, w and r (the 2-ring);
-        //       r───r───r        keep: u alone, the region is the faces around u and w.
+        //       r───r───r        recompute: u and every r get new directions, the region
+        //     ╱ │ ╱ │ ╱ │        is every face around u, w and r (the 2-ring, 32 faces);
+        //   r───u═══w───r        keep: u alone, the region is the 10 faces drawn.
+        //   │ ╱ │ ╱ │ ╱
+        //   r───r───r
         let dense = grid_mesh(6);
         let (u, w) = (2 * 7 + 2, 2 * 7 + 3);
         let around = |st: &State, vs: &[u32]| {
