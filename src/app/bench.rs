@@ -136,14 +136,6 @@ impl RunResult {
     }
 }
 
-/// The rule's name on the command line.
-fn ring_arg(r: RingDirections) -> &'static str {
-    match r {
-        RingDirections::Recompute => "recompute",
-        RingDirections::Keep => "keep",
-    }
-}
-
 /// Runs `dispdec bench-run` for one decimation in a child process and reads its outcome.
 fn measure(job: &BenchJob, input: &Path, output: &Path, config: Config) -> Result<RunOutcome, Error> {
     let result = output.with_extension("run.json");
@@ -153,7 +145,7 @@ fn measure(job: &BenchJob, input: &Path, output: &Path, config: Config) -> Resul
         .arg(input)
         .arg(output)
         .args(["--config", config.arg(), "--batch", &job.batch.to_string()])
-        .args(["--ring-directions", ring_arg(job.ring), "--result"])
+        .args(["--ring-directions", job.ring.arg(), "--result"])
         .arg(&result)
         .stdin(std::process::Stdio::null())
         .stdout(std::process::Stdio::null())
@@ -439,7 +431,7 @@ pub fn table(r: &BenchReport) -> String {
         s += &format!("; --batch {}", r.batch);
     }
     if r.ring_directions != RingDirections::default() {
-        s += &format!("; --ring-directions {}", ring_arg(r.ring_directions));
+        s += &format!("; --ring-directions {}", r.ring_directions.arg());
     }
     s += "\n\n";
     s += "| mesh | faces in | path | faces out | total s | evaluate s (in kernels) | pick+commit s | checks s | peak MB (B/face) | band | meshopt ms | × meshopt |\n";

@@ -46,7 +46,8 @@ impl Snapshot {
             let verts = old.map(relabel);
             let pos = verts.map(pos_of);
             let cr = face_cross(pos[0], pos[1], pos[2]);
-            if verts.contains(&c.u) {
+            let moved = verts.contains(&c.u);
+            if moved {
                 // Fold-over: the moved fan must keep its orientation and stay non-degenerate.
                 let oc = face_cross(self.pos[old[0] as usize], self.pos[old[1] as usize], self.pos[old[2] as usize]);
                 if cr.dot(oc) <= 0.0 || cr.length_squared() <= 1e-30 * oc.length_squared().max(1e-300) {
@@ -56,8 +57,10 @@ impl Snapshot {
             for &v in &verts {
                 if let Some(i) = changed_idx(v) {
                     crosses[i].push(cr);
-                } else if verts.contains(&c.u) && self.mode == NormalMode::Interpolated && self.dir[v as usize].dot(cr) <= 0.0 {
-                    // A ring vertex keeps its direction: it must still lean with its faces.
+                } else if moved && self.mode == NormalMode::Interpolated && self.dir[v as usize].dot(cr) <= 0.0 {
+                    // A ring vertex that keeps its direction (`RingDirections::Keep`; with
+                    // `Recompute` every vertex of a moved face is changed) must still lean
+                    // with its faces.
                     return Err(Reject::Foldover);
                 }
             }

@@ -81,6 +81,16 @@ pub enum RingDirections {
     Keep,
 }
 
+impl RingDirections {
+    /// Its name on the command line (`--ring-directions`) and in reports.
+    pub fn arg(self) -> &'static str {
+        match self {
+            RingDirections::Recompute => "recompute",
+            RingDirections::Keep => "keep",
+        }
+    }
+}
+
 /// How a candidate measures a dense vertex's distance to its collapsed region, to find the
 /// vertices whose primary may move onto it (distance below |d|) and those whose edges may gain
 /// a smaller solution on it (distance below |d| + half the vertex's longest edge): both bounds
@@ -515,10 +525,9 @@ impl State {
         }
         region.sort_unstable();
         region.dedup();
+        // The region's outer vertices: the ring itself when only u changes direction.
         let mut ring2 = Vec::new();
-        if keep {
-            ring2.extend_from_slice(&ring);
-        } else {
+        if !keep {
             for &f in &region {
                 for v in self.topo.face(f) {
                     if v != u && v != w && ring.binary_search(&v).is_err() {
@@ -529,8 +538,9 @@ impl State {
             ring2.sort_unstable();
             ring2.dedup();
         }
+        let outer = if keep { &ring } else { &ring2 };
         let mut border = Vec::new();
-        for &v in &ring2 {
+        for &v in outer {
             self.topo.faces_around(v, s, tmp);
             border.extend(tmp.iter().copied().filter(|f| region.binary_search(f).is_err()));
         }
