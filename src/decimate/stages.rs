@@ -117,6 +117,11 @@ impl StageClock {
         ns.fetch_add((seconds * 1e9) as u64, Ordering::Relaxed);
     }
 
+    /// Placements failed so far by a flipped or torn dense triangle.
+    pub fn flipped_or_torn(&self) -> u64 {
+        [Reject::Flip, Reject::Tear].iter().map(|&r| self.failed[r as usize].0.load(Ordering::Relaxed)).sum()
+    }
+
     /// The clocks in seconds, for the report.
     pub fn summary(&self) -> StageSummary {
         let s = |a: &AtomicU64| a.load(Ordering::Relaxed) as f64 * 1e-9;
