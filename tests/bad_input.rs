@@ -218,6 +218,7 @@ fn bench_reports_bad_input_from_either_process() {
 /// Never lose the user's data: an output named like an input — the same path, a symlink to it —
 /// or like another output is refused before any work (exit 2, both named), and the input stays
 /// byte for byte. Before this, `decimate scan.obj -o scan.obj` replaced the scan by its base.
+/// The files `bake` writes beside its map (D.obj, D.ext.json) replace only an earlier bake's.
 #[test]
 fn an_output_on_an_input_is_refused_and_the_input_kept() {
     let d = tempdir("output-on-input");
@@ -256,6 +257,20 @@ fn an_output_on_an_input_is_refused_and_the_input_kept() {
     let o = run(&["bake", s, b, "-o", disp.to_str().unwrap(), "--resolution", "64"]);
     assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
     refused(&["reconstruct", b, disp.to_str().unwrap(), "--levels", "1", "-o", b], "base.obj", "would overwrite the input");
+    // The files bake writes beside a map replace an earlier bake's, never a file of the user's.
+    let baked_obj = std::fs::read(d.join("disp.obj")).unwrap();
+    let o = run(&["bake", s, b, "-o", disp.to_str().unwrap(), "--resolution", "64"]);
+    assert_eq!(o.status.code(), Some(0), "baked again over its own outputs: {}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(std::fs::read(d.join("disp.obj")).unwrap(), baked_obj, "the same base with UVs");
+    let (mine, mine_map) = (d.join("mine.obj"), d.join("mine.exr"));
+    std::fs::write(&mine, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    refused(&["bake", s, b, "-o", mine_map.to_str().unwrap(), "--resolution", "64"], "mine.obj", "did not write");
+    assert_eq!(std::fs::read_to_string(&mine).unwrap(), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "the user's mesh is kept");
+    assert!(!mine_map.exists(), "nothing written by a refused bake");
+    let side = d.join("side.exr.json");
+    std::fs::write(&side, "my notes\n").unwrap();
+    refused(&["bake", s, b, "-o", d.join("side.exr").to_str().unwrap(), "--resolution", "64"], "side.exr.json", "did not write");
+    assert!(!d.join("side.obj").exists() && std::fs::read_to_string(&side).unwrap() == "my notes\n");
     refused(&["bench", "--meshes", s, "--configs", "cpu1", "--json", s, "--work", d.join("work").to_str().unwrap()], "scan.obj", "would overwrite the input");
     assert_eq!(std::fs::read(&base).unwrap(), base_before, "the base is kept");
 }

@@ -27,6 +27,32 @@ pub fn check_outputs(inputs: &[&Path], outputs: &[(&str, &Path)]) -> Result<(), 
     Ok(())
 }
 
+/// Refuses (a usage error, exit 2, before anything is read or written) to write an output the
+/// user did not name — `what` at `path`, which a command writes beside a named one — over a
+/// regular file that is there and is not that command's own (`ours`, given its first bytes):
+/// `bake -o D.exr` writes D.obj and D.exr.json, and D.obj may be the user's own mesh. A file
+/// the command wrote before is replaced, as a named output is.
+pub fn check_beside(path: &Path, what: &str, named: &Path, ours: impl Fn(&[u8]) -> bool) -> Result<(), Error> {
+    let Ok(meta) = std::fs::metadata(path) else { return Ok(()) };
+    if !meta.is_file() {
+        return Ok(());
+    }
+    let mut head = Vec::new();
+    let readable = std::fs::File::open(path).and_then(|f| std::io::Read::read_to_end(&mut std::io::Read::take(f, BESIDE_HEAD), &mut head));
+    if readable.is_ok() && ours(&head) {
+        return Ok(());
+    }
+    Err(Error::Usage(format!(
+        "{}: {what} goes beside {}, and a file that dispdec did not write is there; move it, or name the output otherwise",
+        path.display(),
+        named.display()
+    )))
+}
+
+/// How much of a file [`check_beside`] reads to tell whether it is the command's own. Why: the
+/// marks it looks for are in a file's first line or first few keys.
+const BESIDE_HEAD: u64 = 4096;
+
 /// Whether writing to `a` would replace what `b` names. Two existing paths: the same file
 /// (device and inode; elsewhere, the same canonical path). Otherwise the same place once the
 /// folders are resolved. A path that exists as anything but a regular file never is.
@@ -98,6 +124,25 @@ mod tests {
         // A new file beside it, and a device, are fine.
         assert!(check_outputs(&[&scan], &[("the base mesh", &d.join("base.obj"))]).is_ok());
         assert!(check_outputs(&[&scan], &[("a", Path::new("/dev/null")), ("b", Path::new("/dev/null"))]).is_ok());
+    }
+
+    #[test]
+    fn a_file_beside_an_output_is_replaced_only_when_ours() {
+        let d = dir("beside");
+        let named = d.join("d.exr");
+        let beside = d.join("d.obj");
+        let ours = |head: &[u8]| head.starts_with(b"# ours");
+        // Nothing there, a device, or our own file: written.
+        assert!(check_beside(&beside, "the base with the map's UVs", &named, ours).is_ok());
+        assert!(check_beside(Path::new("/dev/null"), "the base with the map's UVs", &named, ours).is_ok());
+        std::fs::write(&beside, "# ours\nv 0 0 0\n").unwrap();
+        assert!(check_beside(&beside, "the base with the map's UVs", &named, ours).is_ok());
+        // Someone else's: refused, naming both files.
+        std::fs::write(&beside, "v 1 2 3\n").unwrap();
+        let e = check_beside(&beside, "the base with the map's UVs", &named, ours).unwrap_err();
+        assert_eq!(e.exit_code(), 2);
+        let msg = e.to_string();
+        assert!(msg.contains("d.obj") && msg.contains("d.exr") && msg.contains("did not write"), "{msg}");
     }
 
     #[test]

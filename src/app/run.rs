@@ -11,7 +11,7 @@ use crate::mesh::{self, write_atomic};
 use crate::maps::bake::Kind;
 use crate::settings::{Flags, Settings};
 use crate::Error;
-use crate::app::outputs::check_outputs;
+use crate::app::outputs::{check_beside, check_outputs};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -792,6 +792,10 @@ pub struct BakeReport {
     pub warnings: Vec<String>,
 }
 
+/// The first line of the OBJ that `bake` writes beside a map, up to the map's name: a file
+/// there that starts otherwise is not replaced ([`check_beside`]).
+const BAKED_OBJ_MARK: &str = "# dispdec base mesh with the UVs of ";
+
 /// `dispdec bake HIGH BASE.obj [--map BASE.map] -o DISP.(exr|pfm|png) [--kind K]`: the map, its
 /// JSON sidecar, and DISP.obj (the base with one `vt` per face corner).
 pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
@@ -820,6 +824,12 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
     }
     let side_path = crate::maps::bake::sidecar_path(out);
     check_outputs(&inputs, &[("the map's sidecar", &side_path), ("the base with the map's UVs", &uv_mesh), ("the displacement map", out)])?;
+    // The two files written beside the map replace only what an earlier bake wrote there.
+    check_beside(&uv_mesh, "the base with the map's UVs", out, |head| head.starts_with(BAKED_OBJ_MARK.as_bytes()))?;
+    check_beside(&side_path, "the map's sidecar", out, |head| {
+        let text = String::from_utf8_lossy(head);
+        text.trim_start().starts_with('{') && text.contains("\"convention\"")
+    })?;
     let Pair { base: loaded, high: scan, normals, dmax, warnings, .. } = load_pair(&job.high, &job.base, &job.flags)?;
     let b = &loaded.base;
     let dense = mesh::DenseData::new(&scan.positions, &scan.faces);
@@ -857,7 +867,7 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
         _ => map.to_png16(job.kind),
     };
     let header = format!(
-        "dispdec base mesh with the UVs of {} ({} map, {} texels a side; vt: u right, v up)\n{}",
+        "{BAKED_OBJ_MARK}{} ({} map, {} texels a side; vt: u right, v up)\n{}",
         out.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default(),
         job.kind.name(),
         map.atlas.size,
