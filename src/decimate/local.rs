@@ -18,7 +18,7 @@
 //! faces, or have its image on a reshaped face, which moves it in the loop's chart).
 
 use crate::decimate::{Candidate, NearRule, Snapshot};
-use crate::guarantee::chunks::{chunk_count, flat_map_chunks, run_to_first_failure};
+use crate::guarantee::chunks::{chunk_count, flat_map_chunks, run_to_first_failure_timed, Excess};
 use crate::guarantee::ids::{merge_sorted, sorted_unique, IdIndex};
 use super::outcome::Accepted;
 use crate::guarantee::{check_alone, check_faces, find_primary, find_primary_capped, find_primary_near_first, find_primary_recording, find_primary_widening, CheckOut, find_primary_hinted, FaceInfo, FailAt, Found, Map, MapContext, NormalMode, Reject, Scratch, Tris};
@@ -219,16 +219,16 @@ impl Snapshot {
     /// pinched)`; fails at the first vertex without one (or, strict, with two), which it names
     /// beside the reason. In contiguous chunks of `c.order` over the threads, each with its own
     /// `init()` state (returned, for counters); the failure reported is the first in `c.order`
-    /// whatever the thread count.
+    /// whatever the thread count. Also returns the chunks' [`Excess`] CPU time.
     pub(crate) fn solve_region_vertices<S: Send>(
         &self,
         c: &Candidate,
         tris: &Tris,
         init: impl Fn() -> S + Sync,
         solve: impl Fn(&mut S, usize, DVec3, bool) -> Found + Sync,
-    ) -> (Result<Vec<Map>, (Reject, u32)>, Vec<S>) {
+    ) -> (Result<Vec<Map>, (Reject, u32)>, Vec<S>, Excess) {
         let chunks = chunk_count(c.order.len(), PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD);
-        let parts = run_to_first_failure(&c.order, chunks, |chunk, stop| {
+        let (parts, excess) = run_to_first_failure_timed(&c.order, chunks, |chunk, stop| {
             let mut state = init();
             let mut out = Vec::with_capacity(chunk.len());
             for &i in chunk {
@@ -272,7 +272,7 @@ impl Snapshot {
                 }
             }
         }
-        (verdict.map(|_| maps), states)
+        (verdict.map(|_| maps), states, excess)
     }
 
     /// The reach stage of a placement whose region's vertices are solved: faces outside that
@@ -282,10 +282,12 @@ impl Snapshot {
     pub(crate) fn reach_placement(&self, c: &Candidate, tris: &Tris, n_region: usize, mut maps: Vec<Map>, scratch: &mut Scratch) -> Result<Reached, Reject> {
         let t = Instant::now();
         let mut read_faces = Vec::new();
-        self.far_primaries(c, tris, &mut maps, scratch, &mut read_faces);
-        let (extras, near) = self.moved_primaries(c, tris, n_region, scratch);
+        let mut excess = Excess::default();
+        self.far_primaries(c, tris, &mut maps, scratch, &mut read_faces, &mut excess);
+        let (extras, near) = self.moved_primaries(c, tris, n_region, scratch, &mut excess);
         let r = if self.strict { self.strict_ring(c, tris, n_region, &extras, scratch) } else { Ok(()) };
-        self.clock.lap(Stage::Reach, t);
+        // CPU time: the stage's wall time on this thread, its parallel chunks summed.
+        self.clock.add(Stage::Reach, (excess.cpu_seconds(t.elapsed().as_secs_f64()) * 1e9) as u64);
         r.map(|_| Reached { maps, extras, near, read_faces })
     }
 
@@ -459,7 +461,7 @@ impl Snapshot {
     /// The region's vertices were solved over region ∪ border; a face outside (the far side of
     /// a thin part) may hold a solution with a smaller |d|. Any such face lies within |d| of the
     /// vertex, so one grid query with the largest |d| finds every candidate face.
-    fn far_primaries(&self, c: &Candidate, tris: &Tris, maps: &mut [Map], scratch: &mut Scratch, reads: &mut Vec<u32>) {
+    fn far_primaries(&self, c: &Candidate, tris: &Tris, maps: &mut [Map], scratch: &mut Scratch, reads: &mut Vec<u32>, excess: &mut Excess) {
         let mut lo = DVec3::splat(f64::INFINITY);
         let mut hi = DVec3::splat(f64::NEG_INFINITY);
         let mut reach: f64 = 0.0;
@@ -485,7 +487,7 @@ impl Snapshot {
         reads.extend_from_slice(&far.ids);
         // Each vertex on its own, in contiguous chunks over the threads, so that a large
         // region's far pass is not one thread's while the round waits: the better maps found.
-        let better = flat_map_chunks(&c.dense, PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD, scratch, |offset, verts, scratch| {
+        let (better, spent) = flat_map_chunks(&c.dense, PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD, scratch, |offset, verts, scratch| {
             let mut normals = Vec::new();
             let mut better = Vec::new();
             for (k, &v) in verts.iter().enumerate() {
@@ -500,6 +502,7 @@ impl Snapshot {
             }
             better
         });
+        excess.add(spent);
         for (i, m) in better {
             maps[i] = m;
         }
@@ -555,7 +558,7 @@ impl Snapshot {
     /// one of their edges (within half the vertex's longest edge) may gain a smaller solution on
     /// the region, or may have its image on a region face as it was before the collapse (the
     /// image moves with the face): their triangles are tested too.
-    fn moved_primaries(&self, c: &Candidate, tris: &Tris, n_region: usize, scratch: &mut Scratch) -> (Vec<(u32, Map)>, Vec<u32>) {
+    fn moved_primaries(&self, c: &Candidate, tris: &Tris, n_region: usize, scratch: &mut Scratch, excess: &mut Excess) -> (Vec<(u32, Map)>, Vec<u32>) {
         let reach = self.max_abs_d + self.edge_reach_max;
         if self.max_abs_d <= 0.0 || n_region == 0 {
             return (Vec::new(), Vec::new());
@@ -594,7 +597,7 @@ impl Snapshot {
         let region = region_tris(tris, n_region);
         // Each vertex on its own, in contiguous chunks over the threads (as `far_primaries`):
         // its new map on the region, or none (then it is near).
-        let solved = flat_map_chunks(&cand, PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD, scratch, |_, verts, scratch| {
+        let (solved, spent) = flat_map_chunks(&cand, PRIMARY_CHUNK_MIN, PRIMARY_CHUNKS_PER_THREAD, scratch, |_, verts, scratch| {
             let mut normals = Vec::new();
             verts
                 .iter()
@@ -604,6 +607,7 @@ impl Snapshot {
                 })
                 .collect()
         });
+        excess.add(spent);
         let mut out = Vec::new();
         for (v, m) in solved {
             match m {

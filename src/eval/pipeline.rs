@@ -63,8 +63,10 @@ pub type Solved = Result<Vec<Map>, (Reject, u32)>;
 /// answers (the band's whole point).
 pub trait Primaries: Sync {
     /// The solutions of `items` (all of them: the wave's survivors of the hint stage), in
-    /// order, each with the CPU seconds spent on it alone (a shared dispatch not counted).
-    fn solve(&self, snap: &Snapshot, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64)>, GpuError>;
+    /// order, each with the seconds spent on it alone (a shared dispatch not counted): its wall
+    /// time on the thread that ran it (the candidate's time), and its CPU time, the parallel
+    /// chunks of its region summed (the stage's clock).
+    fn solve(&self, snap: &Snapshot, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64, f64)>, GpuError>;
 }
 
 /// The f64 primaries stage: [`find_primary`] over each item's neighbourhood, each region's
@@ -72,14 +74,14 @@ pub trait Primaries: Sync {
 pub struct CpuPrimaries;
 
 impl Primaries for CpuPrimaries {
-    fn solve(&self, snap: &Snapshot, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64)>, GpuError> {
+    fn solve(&self, snap: &Snapshot, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64, f64)>, GpuError> {
         Ok(items
             .par_iter()
             .map(|it| {
                 let t = Instant::now();
                 let c = &batch[it.candidate];
                 let tris = &it.tris;
-                let (solved, _) = snap.solve_region_vertices(
+                let (solved, _, excess) = snap.solve_region_vertices(
                     c,
                     tris,
                     || (Scratch::default(), Vec::new(), usize::MAX),
@@ -98,7 +100,8 @@ impl Primaries for CpuPrimaries {
                         found
                     },
                 );
-                (solved, t.elapsed().as_secs_f64())
+                let wall = t.elapsed().as_secs_f64();
+                (solved, wall, excess.cpu_seconds(wall))
             })
             .collect())
     }
@@ -301,9 +304,9 @@ impl Round {
     /// Primaries, reach and checks of a gathered wave.
     fn test(&mut self, snap: &Snapshot, batch: &[Candidate], primaries: &dyn Primaries, mut wave: Wave) -> Result<(), GpuError> {
         let solved = primaries.solve(snap, batch, &wave.items)?;
-        snap.clock.add(Stage::Primaries, (solved.iter().map(|r| r.1).sum::<f64>() * 1e9) as u64);
+        snap.clock.add(Stage::Primaries, (solved.iter().map(|r| r.2).sum::<f64>() * 1e9) as u64);
         // A region vertex without a solution (or, strict, with two) goes into the memo.
-        let solved: Vec<_> = solved.into_iter().zip(wave.memos.iter_mut()).map(|((r, s), memo)| (r.map_err(|failed| snap.note_solve_failure(memo, failed)), s)).collect();
+        let solved: Vec<_> = solved.into_iter().zip(wave.memos.iter_mut()).map(|((r, s, _), memo)| (r.map_err(|failed| snap.note_solve_failure(memo, failed)), s)).collect();
         let (mut wave, maps) = self.sift(snap, wave, solved);
         let reached = stage_reach(snap, batch, &mut wave.items, maps);
         let (mut wave, reached) = self.sift(snap, wave, reached);

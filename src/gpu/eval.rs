@@ -426,7 +426,7 @@ struct FirstPlacement<'a> {
 }
 
 impl Primaries for FirstPlacement<'_> {
-    fn solve(&self, snap: &Snapshot, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64)>, GpuError> {
+    fn solve(&self, snap: &Snapshot, batch: &[Candidate], items: &[Item]) -> Result<Vec<(Solved, f64, f64)>, GpuError> {
         items
             .iter()
             .map(|it| {
@@ -439,7 +439,7 @@ impl Primaries for FirstPlacement<'_> {
                 }
                 let t = Instant::now();
                 let tris = &it.tris;
-                let (solved, states) = snap.solve_region_vertices(
+                let (solved, states, excess) = snap.solve_region_vertices(
                     c,
                     tris,
                     || (Scratch::default(), Vec::new(), 0u64),
@@ -455,7 +455,8 @@ impl Primaries for FirstPlacement<'_> {
                 if disagreements > 0 {
                     self.gpu.add_stats(&[], disagreements, 0.0);
                 }
-                Ok((solved, t.elapsed().as_secs_f64()))
+                let wall = t.elapsed().as_secs_f64();
+                Ok((solved, wall, excess.cpu_seconds(wall)))
             })
             .collect()
     }
