@@ -149,9 +149,7 @@ fn bunny_reaches_the_paper_and_carries_the_scan() {
 #[test]
 fn strict_and_constant_modes_on_the_sample() {
     let dir = tempdir("sample-modes");
-    let scan = dir.join("scan.obj");
-    let o = run(&["sample", "--faces", "6000", "--seed", "7", "-o", scan.to_str().unwrap()]);
-    assert_eq!(o.status.code(), Some(0));
+    let scan = sample_6k(&dir, "scan.obj");
     let (r, obj, _) = decimate(&scan, &dir, "s", &["--strict"]);
     assert_eq!(r["strict"], true);
     assert_carries(&r);

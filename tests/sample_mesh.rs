@@ -102,9 +102,7 @@ fn batch_one_is_the_serial_algorithm() {
 #[test]
 fn keeping_the_ring_directions_checks_fewer_triangles_for_a_valid_base() {
     let dir = tempdir("sample-keep");
-    let scan = dir.join("scan.obj");
-    let o = run(&["sample", "--faces", "6000", "--seed", "7", "-o", scan.to_str().unwrap()]);
-    assert_eq!(o.status.code(), Some(0));
+    let scan = sample_6k(&dir, "scan.obj");
     let made = |name: &str, extra: &[&str]| {
         let (obj, map, rep) = (dir.join(format!("{name}.obj")), dir.join(format!("{name}.map")), dir.join(format!("{name}.json")));
         let mut args = vec!["decimate", scan.to_str().unwrap(), "-o", obj.to_str().unwrap(), "--map", map.to_str().unwrap(), "--report", rep.to_str().unwrap(), "--backend", "cpu", "-q"];
@@ -139,9 +137,7 @@ fn keeping_the_ring_directions_checks_fewer_triangles_for_a_valid_base() {
 #[test]
 fn fine_loops_make_a_base_that_passes_the_finer_walk() {
     let dir = tempdir("sample-fine");
-    let scan = dir.join("scan.obj");
-    let o = run(&["sample", "--faces", "6000", "--seed", "7", "-o", scan.to_str().unwrap()]);
-    assert_eq!(o.status.code(), Some(0));
+    let scan = sample_6k(&dir, "scan.obj");
     let judge = |name: &str, extra: &[&str]| {
         let (obj, rep, v) = (dir.join(format!("{name}.obj")), dir.join(format!("{name}.json")), dir.join(format!("{name}-v.json")));
         let mut args = vec!["decimate", scan.to_str().unwrap(), "-o", obj.to_str().unwrap(), "--report", rep.to_str().unwrap(), "-q"];

@@ -300,9 +300,7 @@ fn validate_projection_on_gpu_equals_cpu() {
 fn decimate_and_validate_with_backend_gpu_match_cpu() {
     let Some(_) = vulkan() else { return };
     let dir = tempdir("backend-gpu");
-    let scan = dir.join("scan.obj");
-    let o = run(&["sample", "--faces", "6000", "--seed", "7", "-o", scan.to_str().unwrap()]);
-    assert_eq!(o.status.code(), Some(0));
+    let scan = sample_6k(&dir, "scan.obj");
     let mut bytes = Vec::new();
     for backend in ["cpu", "gpu"] {
         let (b, m, r) = (dir.join(format!("{backend}.obj")), dir.join(format!("{backend}.map")), dir.join(format!("{backend}.json")));

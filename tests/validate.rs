@@ -325,9 +325,7 @@ fn fixtures_are_judged_and_the_exhaustive_mode_agrees() {
 #[test]
 fn a_jump_at_a_fold_of_the_solution_path_is_a_tear() {
     let dir = tempdir("val-fold");
-    let scan = dir.join("s6k.obj");
-    let o = run(&["sample", "--faces", "6000", "--seed", "7", "-o", scan.to_str().unwrap()]);
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let scan = sample_6k(&dir, "s6k.obj");
     let base = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tests/sample6k-413-before-fold-rule.obj");
     let (code, r, err) = validate(&dir, &scan, &base, &["--backend", "cpu"]);
     assert_eq!(code, 1, "{err}");

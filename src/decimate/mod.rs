@@ -1034,6 +1034,12 @@ mod tests {
         assert_eq!(got, vec![(100, 50, 3, 8, 5), (50, 25, 2, 3, 2), (12, 6, 1, 2, 1)]);
     }
 
+    /// The generated 3,000-face sample (seed 7), checked as a scan is.
+    fn sample_3k() -> DenseMesh {
+        let mesh = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 3000, seed: 7 });
+        crate::mesh::check_and_compact(std::path::Path::new("sample"), mesh).unwrap()
+    }
+
     /// A bumpy n × n grid (a scan-like open disk).
     fn grid_mesh(n: usize) -> DenseMesh {
         let mut positions = Vec::new();
@@ -1060,8 +1066,7 @@ mod tests {
         // The scan-like sample (bumps, a fin, an overhang) rejects collapses by tears and
         // flips; testing the place of a collapse's last failure first must give the same base,
         // map for map, as the stages' plain order (edges, then triangles).
-        let mesh = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 3000, seed: 7 });
-        let dense = crate::mesh::check_and_compact(std::path::Path::new("sample"), mesh).unwrap();
+        let dense = sample_3k();
         let run = |hints: bool| {
             let mut st = State::new(&dense, &Options::default());
             st.fail_hints = hints;
@@ -1152,8 +1157,7 @@ mod tests {
         // dense vertex, triangle and edge); with the ring's directions kept every live vertex's
         // direction still leans with each of its faces, and the candidate test checks far
         // fewer dense triangles per accepted collapse.
-        let mesh = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 3000, seed: 7 });
-        let dense = crate::mesh::check_and_compact(std::path::Path::new("sample"), mesh).unwrap();
+        let dense = sample_3k();
         let run = |ring: RingDirections| {
             let opts = Options { ring, ..Options::default() };
             let mut st = State::new(&dense, &opts);
@@ -1182,8 +1186,7 @@ mod tests {
     fn each_halving_reports_the_time_and_the_check_refusals_of_its_rounds() {
         // Every round's wall time (pick, evaluate, commit) and every placement the exact checks
         // refused land in exactly one halving: the levels add up to the run's own totals.
-        let mesh = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 3000, seed: 7 });
-        let dense = crate::mesh::check_and_compact(std::path::Path::new("sample"), mesh).unwrap();
+        let dense = sample_3k();
         let opts = Options::default();
         let mut st = State::new(&dense, &opts);
         st.run(&CpuEvaluator, &opts, |_| {}).unwrap();
@@ -1207,8 +1210,7 @@ mod tests {
         // part: the near rule can change such a run only through a verdict. Measuring a vertex's
         // distance to the region's triangles instead of their box must give the same base, the
         // same maps and the same failures, with far fewer edges walked.
-        let mesh = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 3000, seed: 7 });
-        let dense = crate::mesh::check_and_compact(std::path::Path::new("sample"), mesh).unwrap();
+        let dense = sample_3k();
         let run = |near: NearRule| {
             let opts = Options { batch: 1, near, ..Options::default() };
             let mut st = State::new(&dense, &opts);
@@ -1238,8 +1240,7 @@ mod tests {
         // failure a placement reports feeds the order of the next try, so it must be the one a
         // single thread finds: the whole run — base, maps, the tally of failed placements by
         // reason, and what reached the check — is the same with 1 and 3 threads.
-        let mesh = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 3000, seed: 7 });
-        let dense = crate::mesh::check_and_compact(std::path::Path::new("sample"), mesh).unwrap();
+        let dense = sample_3k();
         let run = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             pool.install(|| {
@@ -1282,8 +1283,7 @@ mod tests {
         // The sets a candidate's test prepares copy `State::bounds` instead of deriving them:
         // after every round (wide ones: several commits each) every live face's entry must be
         // the bounds of its current corners and directions, bit for bit.
-        let mesh = crate::mesh::sample::generate(crate::mesh::sample::SampleSpec { faces: 3000, seed: 7 });
-        let dense = crate::mesh::check_and_compact(std::path::Path::new("sample"), mesh).unwrap();
+        let dense = sample_3k();
         let mut st = State::new(&dense, &Options::default());
         st.keep_bounds();
         let bits = |b: &TriBounds| format!("{b:?}");

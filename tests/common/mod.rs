@@ -16,6 +16,15 @@ pub fn run(args: &[&str]) -> Output {
     bin().args(args).output().expect("run dispdec")
 }
 
+/// The 6k sample of README's modes tables (`dispdec sample --faces 6000 --seed 7`), written to
+/// `dir`/`name`.
+pub fn sample_6k(dir: &Path, name: &str) -> PathBuf {
+    let scan = dir.join(name);
+    let o = run(&["sample", "--faces", "6000", "--seed", "7", "-o", scan.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    scan
+}
+
 /// A fresh, empty temporary directory for one test.
 pub fn tempdir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("dispdec-test-{name}-{}", std::process::id()));
