@@ -16,7 +16,9 @@
 #       `--backend auto` picks) and OUT/bench.log (with each base's sha256, and whether the
 #       paths' bases are the same bytes).
 #       With BATCH=N in the environment, every run decimates at that round width (`--batch`;
-#       default 16), and the JSON's name ends in -batch-N.
+#       default 16), and the JSON's name ends in -batch-N. With RING=keep, every run keeps the
+#       ring's directions (`--ring-directions keep`, README Results: 2–2.4x less time here),
+#       and the JSON's name ends in -keep.
 #       The 1M sample (`sample1m`) is generated there by the binary itself. Exit status: 0,
 #       or the last failing bench's (124 when the limit stopped it; what finished of that mesh
 #       is in the log).
@@ -122,10 +124,10 @@ run)
       break
     fi
     name=$(basename "$mesh" | sed 's/[^A-Za-z0-9_.-]/_/g')
-    json="bench-$name-${configs//,/_}$([ "${BATCH:-16}" = 16 ] || echo "-batch-$BATCH").json"
+    json="bench-$name-${configs//,/_}$([ "${BATCH:-16}" = 16 ] || echo "-batch-$BATCH")$([ "${RING:-recompute}" = recompute ] || echo "-$RING").json"
     work=$(mktemp -d)
     timeout "$left" "$pack/dispdec" bench --verbose --data "$pack/data" --meshes "$mesh" --configs "$configs" \
-      --batch "${BATCH:-16}" --runs 1 --work "$work" --json "$out/$json" 2>&1 | tee -a "$out/bench.log"
+      --batch "${BATCH:-16}" --ring-directions "${RING:-recompute}" --runs 1 --work "$work" --json "$out/$json" 2>&1 | tee -a "$out/bench.log"
     r=${PIPESTATUS[0]}
     echo "gpu-bench: $mesh: exit $r; $out/$json $([ -f "$out/$json" ] && echo written || echo 'not written')" | tee -a "$out/bench.log"
     # The bases each path wrote (the bench keeps the last run's as WORK/MESH-Config.obj): the same bytes?
