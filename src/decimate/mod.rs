@@ -746,7 +746,7 @@ impl State {
             verts.dedup();
             for &v in &verts {
                 self.topo.neighbours(v, &mut s, &mut t2);
-                for &x in t2.clone().iter() {
+                for &x in &t2 {
                     self.push_edge(v, x);
                 }
             }
