@@ -109,6 +109,41 @@ fn nan_coordinate() {
 }
 
 #[test]
+fn a_stray_vertex_far_off_is_refused() {
+    // Found by mutating files at random: the 968-face sample with one vertex's z replaced by
+    // -1.25e18 (a binary PLY's float garbled) made decimate run on past minutes, every search
+    // reaching every face; nearer (9.3e4 median edges off) it wrote a base that failed the
+    // final check. Now it is refused before any work: exit 2, the vertex named.
+    let d = tempdir("stray");
+    let s = d.join("s.obj");
+    let o = run(&["-q", "sample", "--faces", "1000", "--seed", "3", "-o", s.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = std::fs::read_to_string(&s).unwrap();
+    let mut k = 0;
+    let moved: Vec<String> = text
+        .lines()
+        .map(|l| {
+            if !l.starts_with("v ") {
+                return l.to_string();
+            }
+            k += 1;
+            if k != 459 {
+                return l.to_string();
+            }
+            let p: Vec<&str> = l.split_whitespace().collect();
+            format!("v {} {} -1.25e18", p[1], p[2])
+        })
+        .collect();
+    let p = write(&d, "stray.obj", &(moved.join("\n") + "\n"));
+    expect_rejected(&d, &p, "median edge lengths (at most 1e4)");
+    let err = String::from_utf8_lossy(&run(&["decimate", p.to_str().unwrap(), "-o", d.join("b.obj").to_str().unwrap()]).stderr).to_string();
+    assert!(err.contains("vertex farthest from the rest is 458 at") && err.contains("stray vertex?"), "{err}");
+    // validate reads the scan the same way.
+    let o = run(&["validate", p.to_str().unwrap(), s.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+#[test]
 fn face_that_cannot_be_triangulated() {
     let d = tempdir("twogon");
     let p = write(&d, "twogon.obj", &format!("{TET_V}f 1 3 2\nf 1 2\n"));

@@ -205,6 +205,9 @@ pub struct Report {
     pub input_cleanup: Cleanup,
     /// Faces of the input file (triangulated), before welding and repair.
     pub input_faces: usize,
+    /// How many of its median edge lengths the scan's bounding-box diagonal spans (a scan
+    /// beyond `mesh::MAX_EXTENT_IN_EDGES` is refused: a stray vertex far off).
+    pub input_extent_in_edges: f64,
     /// Warnings about the input (what readers skipped).
     pub warnings: Vec<String>,
     pub collapses: Stats,
@@ -397,6 +400,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         settings,
         input_cleanup: dense.cleanup.clone(),
         input_faces: dense.input_face_count,
+        input_extent_in_edges: dense.extent_in_edges,
         warnings: dense.warnings.clone(),
         collapses: state.stats.clone(),
         recheck: RecheckSummary {

@@ -49,6 +49,9 @@ pub struct DenseMesh {
     pub topology: Topology,
     /// What welding and repair changed.
     pub cleanup: Cleanup,
+    /// How many median edge lengths its bounding-box diagonal spans ([`extent_in_edges`]; at
+    /// most [`MAX_EXTENT_IN_EDGES`]).
+    pub extent_in_edges: f64,
     pub warnings: Vec<String>,
 }
 
@@ -207,6 +210,55 @@ fn check_finite(path: &Path, mesh: &Mesh) -> Result<(), Error> {
     }
 }
 
+/// The longest a scan's bounding-box diagonal may be, in median edge lengths.
+/// Why: dmax and the checks' tolerances scale with the box (SPEC: dmax by default 0.1 × the
+/// diagonal), the detail with the edges. The scans in ../shared/data span 171–391 median edges,
+/// the 1M-face sample 858 (`input_extent_in_edges` in a decimate report). One stray vertex far
+/// off — a scanner's "no data" marker left in a face — breaks the proportion. Measured on the
+/// 968-face `dispdec sample --faces 1000 --seed 3` with its vertex 458 moved away in z: valid
+/// bases at 9.3e3 and 2.8e4 edges; bases with torn dense edges at 9.3e4 and 2.8e5 (the final
+/// check fails, exit 1); past two minutes without an end at 9.3e5 and 1.2e19 (stopped). Ten
+/// times the widest scan here, and below the first failure measured.
+pub const MAX_EXTENT_IN_EDGES: f64 = 1e4;
+
+/// How many median edge lengths the bounding-box diagonal of `positions` spans, the median
+/// taken over every face's three edges (an interior edge counted twice), and the vertex
+/// farthest from the coordinate-wise median point.
+pub fn extent_in_edges(positions: &[DVec3], faces: &[[u32; 3]]) -> (f64, u32) {
+    let mut edges: Vec<f64> = faces.iter().flat_map(|f| (0..3).map(move |k| (f[k], f[(k + 1) % 3]))).map(|(a, b)| positions[a as usize].distance(positions[b as usize])).collect();
+    if edges.is_empty() {
+        return (0.0, 0);
+    }
+    let mid = edges.len() / 2;
+    let median = *edges.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let axis_median = |k: usize| {
+        let mut c: Vec<f64> = positions.iter().map(|p| p[k]).collect();
+        let m = c.len() / 2;
+        *c.select_nth_unstable_by(m, f64::total_cmp).1
+    };
+    let centre = DVec3::new(axis_median(0), axis_median(1), axis_median(2));
+    let far = (0..positions.len()).max_by(|&a, &b| positions[a].distance_squared(centre).total_cmp(&positions[b].distance_squared(centre))).unwrap_or(0);
+    (bbox_diagonal(positions.iter().copied()) / median, far as u32)
+}
+
+/// The scan's extent is within [`MAX_EXTENT_IN_EDGES`] of its median edge: no stray vertex far
+/// off sets dmax and the checks' tolerances out of all proportion to its detail.
+/// Returns the span.
+fn check_extent(path: &Path, positions: &[DVec3], faces: &[[u32; 3]], input_index: &[u32]) -> Result<f64, Error> {
+    let (ratio, far) = extent_in_edges(positions, faces);
+    if ratio <= MAX_EXTENT_IN_EDGES {
+        return Ok(ratio);
+    }
+    let p = positions[far as usize];
+    Err(input_err(
+        path,
+        format!(
+            "its bounding box spans {ratio:.3e} median edge lengths (at most {MAX_EXTENT_IN_EDGES:.0e}): something far off sets the box, dmax and the checks' tolerances out of proportion to the scan's detail, and the guarantee cannot be checked reliably; the vertex farthest from the rest is {} at ({}, {}, {}) — a stray vertex? Remove it and its faces",
+            input_index[far as usize], p.x, p.y, p.z
+        ),
+    ))
+}
+
 fn degenerate_err(path: &Path, f: [u32; 3], fi: usize, hint: bool) -> Error {
     let how = if f[0] == f[1] || f[1] == f[2] || f[0] == f[2] { "it repeats a vertex" } else { "it has zero area" };
     let fix = if hint { " (--repair drops degenerate faces)" } else { "" };
@@ -282,6 +334,7 @@ fn prepare(path: &Path, mesh: Mesh, prep: &Preparation) -> Result<DenseMesh, Err
             return Err(input_err(path, format!("faces {f} and {g} are duplicates: the same three vertices (--repair drops duplicate faces)")));
         }
     }
+    let extent_in_edges = check_extent(path, &positions, &faces, &input_index)?;
     let topology = topology_checked(path, &positions, &faces, &input_index, prep, cleanup.welded_vertices)?;
     repair::count_components(&faces, &mut cleanup);
     let mut dense_of_input = vec![u32::MAX; n];
@@ -303,6 +356,7 @@ fn prepare(path: &Path, mesh: Mesh, prep: &Preparation) -> Result<DenseMesh, Err
         input_face_count,
         topology,
         cleanup,
+        extent_in_edges,
         warnings: mesh.warnings,
     })
 }
@@ -651,6 +705,47 @@ mod tests {
         let corner = |f: usize, k: usize| m.positions[m.faces[f][k] as usize];
         assert_eq!((corner(0, 0), corner(1, 0), corner(2, 2)), (positions[1], positions[0], positions[3]));
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A 4 × 4 grid of unit squares, two triangles each, flat in z = 0:
+    ///
+    /// ```text
+    ///   20--21--22--23--24
+    ///   | / | / | / | / |
+    ///   15--16--17--18--19        median edge 1 (sides; diagonals √2)
+    ///   | / | / | / | / |         diagonal of the box √32 ≈ 5.7
+    ///   10--11--12--13--14
+    ///   | / | / | / | / |         vertex 12 lifted to z = h: a spike
+    ///   5---6---7---8---9
+    ///   | / | / | / | / |
+    ///   0---1---2---3---4
+    /// ```
+    fn grid_with_spike(h: f64) -> Mesh {
+        let mut positions: Vec<DVec3> = (0..25).map(|i| DVec3::new((i % 5) as f64, (i / 5) as f64, 0.0)).collect();
+        positions[12].z = h;
+        let mut faces = Vec::new();
+        for y in 0..4u32 {
+            for x in 0..4u32 {
+                let v = 5 * y + x;
+                faces.push([v, v + 1, v + 6]);
+                faces.push([v, v + 6, v + 5]);
+            }
+        }
+        Mesh { positions, faces, ..Mesh::default() }
+    }
+
+    #[test]
+    fn a_stray_vertex_far_off_is_refused_and_named() {
+        let path = Path::new("spike.obj");
+        // Flat: the box's diagonal over the median edge, √32 / 1.
+        let flat = check_and_compact(path, grid_with_spike(0.0)).unwrap();
+        assert!((flat.extent_in_edges - 32f64.sqrt()).abs() < 1e-12, "{}", flat.extent_in_edges);
+        // A spike within the limit (its 8 edges are ~h long, the median stays 1): accepted.
+        let tall = check_and_compact(path, grid_with_spike(0.5 * MAX_EXTENT_IN_EDGES)).unwrap();
+        assert!(tall.extent_in_edges > 0.49 * MAX_EXTENT_IN_EDGES && tall.extent_in_edges <= MAX_EXTENT_IN_EDGES);
+        // Beyond it: refused, naming the file, the span and the vertex (its input number).
+        let err = check_and_compact(path, grid_with_spike(-1.25e18)).unwrap_err().to_string();
+        assert!(err.contains("spike.obj") && err.contains("1.250e18 median edge lengths") && err.contains("is 12 at (2, 2, -1250000000000000000)"), "{err}");
     }
 
     #[test]
