@@ -259,6 +259,37 @@ fn check_extent(path: &Path, positions: &[DVec3], faces: &[[u32; 3]], input_inde
     ))
 }
 
+/// The farthest a scan may lie from the origin, in its own bounding-box diagonals (its largest
+/// coordinate's magnitude over the diagonal).
+/// Why: f64 keeps 16 digits of a coordinate; the checks compare positions to 1e-12 of dmax
+/// (`SAME_POINT_REL`) and solutions to 1e-7 (`SAME_SOLUTION_REL`). Measured on the 968-face
+/// `dispdec sample --faces 1000 --seed 3` (diagonal 2.9) moved by (t, t, t): valid bases at
+/// t = 1e5 and 1e6 (3.4e4 and 3.4e5 diagonals off; 145 and 150 faces against 139 at the
+/// origin), a base with 4 torn dense faces at 3e6 (1.0e6 diagonals), valid at 1e7, torn at 1e8,
+/// 1e9 and 1e12 (15, 9, 22 faces; the final check fails, exit 1); the bunny moved by 1e6 (4.0e6
+/// diagonals; `--ring-directions keep`, two threads): 308 faces in 300.5 s, 6 torn (at its own
+/// place 133 faces in ~11 s). Ten times below the first failure. A scan in world coordinates (a 3 m statue at a UTM northing of 5.3e6 m: 1.8e6) must
+/// be moved near the origin first.
+pub const MAX_OFFSET_IN_DIAGONALS: f64 = 1e5;
+
+/// The scan lies within [`MAX_OFFSET_IN_DIAGONALS`] of the origin.
+fn check_offset(path: &Path, positions: &[DVec3]) -> Result<(), Error> {
+    let diag = bbox_diagonal(positions.iter().copied());
+    let far = positions.iter().fold(0.0f64, |m, p| m.max(p.abs().max_element()));
+    if far <= MAX_OFFSET_IN_DIAGONALS * diag {
+        return Ok(());
+    }
+    let (lo, hi) = positions.iter().fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    let c = 0.5 * (lo + hi);
+    Err(input_err(
+        path,
+        format!(
+            "it lies {:.3e} of its own size from the origin (at most {MAX_OFFSET_IN_DIAGONALS:.0e}: its box's centre ({}, {}, {}), diagonal {diag}): 64-bit coordinates there cannot carry its detail to the checks' tolerances, and its bases can come out torn; move it near the origin first (subtract the centre) and back after",
+            far / diag, c.x, c.y, c.z
+        ),
+    ))
+}
+
 fn degenerate_err(path: &Path, f: [u32; 3], fi: usize, hint: bool) -> Error {
     let how = if f[0] == f[1] || f[1] == f[2] || f[0] == f[2] { "it repeats a vertex" } else { "it has zero area" };
     let fix = if hint { " (--repair drops degenerate faces)" } else { "" };
@@ -335,6 +366,7 @@ fn prepare(path: &Path, mesh: Mesh, prep: &Preparation) -> Result<DenseMesh, Err
         }
     }
     let extent_in_edges = check_extent(path, &positions, &faces, &input_index)?;
+    check_offset(path, &positions)?;
     let topology = topology_checked(path, &positions, &faces, &input_index, prep, cleanup.welded_vertices)?;
     repair::count_components(&faces, &mut cleanup);
     let mut dense_of_input = vec![u32::MAX; n];
@@ -746,6 +778,22 @@ mod tests {
         // Beyond it: refused, naming the file, the span and the vertex (its input number).
         let err = check_and_compact(path, grid_with_spike(-1.25e18)).unwrap_err().to_string();
         assert!(err.contains("spike.obj") && err.contains("1.250e18 median edge lengths") && err.contains("is 12 at (2, 2, -1250000000000000000)"), "{err}");
+    }
+
+    #[test]
+    fn a_scan_far_from_the_origin_is_refused_and_its_centre_named() {
+        // The flat grid (diagonal √32) moved by (t, t, t): its largest coordinate is t + 4.
+        let moved = |t: f64| {
+            let mut m = grid_with_spike(0.0);
+            m.positions.iter_mut().for_each(|p| *p += DVec3::splat(t));
+            m
+        };
+        let path = Path::new("far.obj");
+        let limit = MAX_OFFSET_IN_DIAGONALS * 32f64.sqrt();
+        assert!(check_and_compact(path, moved(limit - 8.0)).is_ok());
+        let err = check_and_compact(path, moved(limit)).unwrap_err().to_string();
+        let c = limit + 2.0;
+        assert!(err.contains("far.obj") && err.contains(&format!("centre ({c}, {c}, {})", limit)) && err.contains("move it near the origin"), "{err}");
     }
 
     #[test]
