@@ -222,39 +222,43 @@ fn check_finite(path: &Path, mesh: &Mesh) -> Result<(), Error> {
 pub const MAX_EXTENT_IN_EDGES: f64 = 1e4;
 
 /// How many median edge lengths the bounding-box diagonal of `positions` spans, the median
-/// taken over every face's three edges (an interior edge counted twice), and the vertex
-/// farthest from the coordinate-wise median point.
-pub fn extent_in_edges(positions: &[DVec3], faces: &[[u32; 3]]) -> (f64, u32) {
+/// taken over every face's three edges (an interior edge counted twice).
+pub fn extent_in_edges(positions: &[DVec3], faces: &[[u32; 3]]) -> f64 {
     let mut edges: Vec<f64> = faces.iter().flat_map(|f| (0..3).map(move |k| (f[k], f[(k + 1) % 3]))).map(|(a, b)| positions[a as usize].distance(positions[b as usize])).collect();
     if edges.is_empty() {
-        return (0.0, 0);
+        return 0.0;
     }
     let mid = edges.len() / 2;
     let median = *edges.select_nth_unstable_by(mid, f64::total_cmp).1;
+    bbox_diagonal(positions.iter().copied()) / median
+}
+
+/// The vertex farthest from the coordinate-wise median point of `positions` (not empty).
+fn farthest_from_median(positions: &[DVec3]) -> usize {
     let axis_median = |k: usize| {
         let mut c: Vec<f64> = positions.iter().map(|p| p[k]).collect();
         let m = c.len() / 2;
         *c.select_nth_unstable_by(m, f64::total_cmp).1
     };
     let centre = DVec3::new(axis_median(0), axis_median(1), axis_median(2));
-    let far = (0..positions.len()).max_by(|&a, &b| positions[a].distance_squared(centre).total_cmp(&positions[b].distance_squared(centre))).unwrap_or(0);
-    (bbox_diagonal(positions.iter().copied()) / median, far as u32)
+    (0..positions.len()).max_by(|&a, &b| positions[a].distance_squared(centre).total_cmp(&positions[b].distance_squared(centre))).unwrap_or(0)
 }
 
 /// The scan's extent is within [`MAX_EXTENT_IN_EDGES`] of its median edge: no stray vertex far
 /// off sets dmax and the checks' tolerances out of all proportion to its detail.
 /// Returns the span.
 fn check_extent(path: &Path, positions: &[DVec3], faces: &[[u32; 3]], input_index: &[u32]) -> Result<f64, Error> {
-    let (ratio, far) = extent_in_edges(positions, faces);
+    let ratio = extent_in_edges(positions, faces);
     if ratio <= MAX_EXTENT_IN_EDGES {
         return Ok(ratio);
     }
-    let p = positions[far as usize];
+    let far = farthest_from_median(positions);
+    let p = positions[far];
     Err(input_err(
         path,
         format!(
             "its bounding box spans {ratio:.3e} median edge lengths (at most {MAX_EXTENT_IN_EDGES:.0e}): something far off sets the box, dmax and the checks' tolerances out of proportion to the scan's detail, and the guarantee cannot be checked reliably; the vertex farthest from the rest is {} at ({}, {}, {}) — a stray vertex? Remove it and its faces",
-            input_index[far as usize], p.x, p.y, p.z
+            input_index[far], p.x, p.y, p.z
         ),
     ))
 }
@@ -268,18 +272,17 @@ fn check_extent(path: &Path, positions: &[DVec3], faces: &[[u32; 3]], input_inde
 /// origin), a base with 4 torn dense faces at 3e6 (1.0e6 diagonals), valid at 1e7, torn at 1e8,
 /// 1e9 and 1e12 (15, 9, 22 faces; the final check fails, exit 1); the bunny moved by 1e6 (4.0e6
 /// diagonals; `--ring-directions keep`, two threads): 308 faces in 300.5 s, 6 torn (at its own
-/// place 133 faces in ~11 s). Ten times below the first failure. A scan in world coordinates (a 3 m statue at a UTM northing of 5.3e6 m: 1.8e6) must
-/// be moved near the origin first.
+/// place 133 faces in ~11 s). Ten times below the first failure. A scan in world coordinates
+/// (a 3 m statue at a UTM northing of 5.3e6 m: 1.8e6) must be moved near the origin first.
 pub const MAX_OFFSET_IN_DIAGONALS: f64 = 1e5;
 
 /// The scan lies within [`MAX_OFFSET_IN_DIAGONALS`] of the origin.
 fn check_offset(path: &Path, positions: &[DVec3]) -> Result<(), Error> {
-    let diag = bbox_diagonal(positions.iter().copied());
-    let far = positions.iter().fold(0.0f64, |m, p| m.max(p.abs().max_element()));
+    let (lo, hi) = positions.iter().fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    let (diag, far) = (lo.distance(hi), lo.abs().max(hi.abs()).max_element());
     if far <= MAX_OFFSET_IN_DIAGONALS * diag {
         return Ok(());
     }
-    let (lo, hi) = positions.iter().fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
     let c = 0.5 * (lo + hi);
     Err(input_err(
         path,
