@@ -49,8 +49,8 @@ pub struct DenseMesh {
     pub topology: Topology,
     /// What welding and repair changed.
     pub cleanup: Cleanup,
-    /// How many median edge lengths its bounding-box diagonal spans ([`extent_in_edges`]; at
-    /// most [`MAX_EXTENT_IN_EDGES`]).
+    /// How many median edge lengths its bounding-box diagonal spans (at most
+    /// [`MAX_EXTENT_IN_EDGES`]).
     pub extent_in_edges: f64,
     pub warnings: Vec<String>,
 }
@@ -63,17 +63,17 @@ impl Mesh {
 }
 
 pub fn bbox_diagonal(points: impl Iterator<Item = DVec3>) -> f64 {
-    let mut lo = DVec3::splat(f64::INFINITY);
-    let mut hi = DVec3::splat(f64::NEG_INFINITY);
-    for p in points {
-        lo = lo.min(p);
-        hi = hi.max(p);
-    }
+    let (lo, hi) = bbox(points);
     if lo.x > hi.x {
         0.0
     } else {
         (hi - lo).length()
     }
+}
+
+/// The axis-aligned bounding box's corners (lo > hi where there are no points).
+pub fn bbox(points: impl Iterator<Item = DVec3>) -> (DVec3, DVec3) {
+    points.fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| (lo.min(p), hi.max(p)))
 }
 
 fn input_err(path: &Path, msg: impl Into<String>) -> Error {
@@ -221,16 +221,12 @@ fn check_finite(path: &Path, mesh: &Mesh) -> Result<(), Error> {
 /// times the widest scan here, and below the first failure measured.
 pub const MAX_EXTENT_IN_EDGES: f64 = 1e4;
 
-/// How many median edge lengths the bounding-box diagonal of `positions` spans, the median
-/// taken over every face's three edges (an interior edge counted twice).
-pub fn extent_in_edges(positions: &[DVec3], faces: &[[u32; 3]]) -> f64 {
+/// The median edge length of `faces`, over every face's three edges (an interior edge counted
+/// twice); `faces` is not empty.
+fn median_edge(positions: &[DVec3], faces: &[[u32; 3]]) -> f64 {
     let mut edges: Vec<f64> = faces.iter().flat_map(|f| (0..3).map(move |k| (f[k], f[(k + 1) % 3]))).map(|(a, b)| positions[a as usize].distance(positions[b as usize])).collect();
-    if edges.is_empty() {
-        return 0.0;
-    }
     let mid = edges.len() / 2;
-    let median = *edges.select_nth_unstable_by(mid, f64::total_cmp).1;
-    bbox_diagonal(positions.iter().copied()) / median
+    *edges.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// The vertex farthest from the coordinate-wise median point of `positions` (not empty).
@@ -246,9 +242,9 @@ fn farthest_from_median(positions: &[DVec3]) -> usize {
 
 /// The scan's extent is within [`MAX_EXTENT_IN_EDGES`] of its median edge: no stray vertex far
 /// off sets dmax and the checks' tolerances out of all proportion to its detail.
-/// Returns the span.
-fn check_extent(path: &Path, positions: &[DVec3], faces: &[[u32; 3]], input_index: &[u32]) -> Result<f64, Error> {
-    let ratio = extent_in_edges(positions, faces);
+/// `diag` is the box's diagonal; returns the span.
+fn check_extent(path: &Path, diag: f64, positions: &[DVec3], faces: &[[u32; 3]], input_index: &[u32]) -> Result<f64, Error> {
+    let ratio = diag / median_edge(positions, faces);
     if ratio <= MAX_EXTENT_IN_EDGES {
         return Ok(ratio);
     }
@@ -276,9 +272,8 @@ fn check_extent(path: &Path, positions: &[DVec3], faces: &[[u32; 3]], input_inde
 /// (a 3 m statue at a UTM northing of 5.3e6 m: 1.8e6) must be moved near the origin first.
 pub const MAX_OFFSET_IN_DIAGONALS: f64 = 1e5;
 
-/// The scan lies within [`MAX_OFFSET_IN_DIAGONALS`] of the origin.
-fn check_offset(path: &Path, positions: &[DVec3]) -> Result<(), Error> {
-    let (lo, hi) = positions.iter().fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+/// The scan, whose box is [lo, hi], lies within [`MAX_OFFSET_IN_DIAGONALS`] of the origin.
+fn check_offset(path: &Path, lo: DVec3, hi: DVec3) -> Result<(), Error> {
     let (diag, far) = (lo.distance(hi), lo.abs().max(hi.abs()).max_element());
     if far <= MAX_OFFSET_IN_DIAGONALS * diag {
         return Ok(());
@@ -368,8 +363,9 @@ fn prepare(path: &Path, mesh: Mesh, prep: &Preparation) -> Result<DenseMesh, Err
             return Err(input_err(path, format!("faces {f} and {g} are duplicates: the same three vertices (--repair drops duplicate faces)")));
         }
     }
-    let extent_in_edges = check_extent(path, &positions, &faces, &input_index)?;
-    check_offset(path, &positions)?;
+    let (lo, hi) = bbox(positions.iter().copied());
+    let extent_in_edges = check_extent(path, lo.distance(hi), &positions, &faces, &input_index)?;
+    check_offset(path, lo, hi)?;
     let topology = topology_checked(path, &positions, &faces, &input_index, prep, cleanup.welded_vertices)?;
     repair::count_components(&faces, &mut cleanup);
     let mut dense_of_input = vec![u32::MAX; n];
