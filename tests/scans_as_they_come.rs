@@ -354,6 +354,82 @@ fn default_runs_print_one_line_and_quiet_prints_none() {
     }
 }
 
+/// The `v` lines of an OBJ, parsed.
+fn vertices(obj: &[u8]) -> Vec<DVec3> {
+    String::from_utf8_lossy(obj)
+        .lines()
+        .filter_map(|l| l.strip_prefix("v "))
+        .map(|l| {
+            let c: Vec<f64> = l.split_whitespace().map(|x| x.parse().unwrap()).collect();
+            DVec3::new(c[0], c[1], c[2])
+        })
+        .collect()
+}
+
+#[test]
+fn a_scan_in_world_coordinates_is_decimated_where_it_lies() {
+    // The bumpy sphere (radius ~1) at a UTM-like place, 5.3e6 of its diagonals from the origin
+    // (x an easting, y a northing, z about 0), its coordinates multiples of 2^-20 so that the
+    // midpoints a run places are exact in both frames (the file at 5.3e6 holds 2^-30).
+    let d = tempdir("world");
+    let (v, f) = bumpy_sphere();
+    let q = |x: f64| (x * 1048576.0).round() / 1048576.0;
+    let t = DVec3::new(512_345.0, 5_300_000.0, 0.0);
+    let world_v: Vec<DVec3> = v.iter().map(|p| DVec3::new(q(p.x) + t.x, q(p.y) + t.y, q(p.z))).collect();
+    let world = d.join("utm.obj");
+    write_obj(&world, &world_v, &f);
+    let repaired = d.join("as-decimated.obj");
+    let map = d.join("world.map");
+    let (code, r, err, obj) = decimate(&d, &world, "world", &["--map", s(&map), "--repaired", s(&repaired)]);
+    assert_eq!(code, 0, "{err}");
+    // Moved by its box's middle in x and y on load (exactly), and back on every output.
+    let c: Vec<f64> = r["input_centre"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    let c = DVec3::new(c[0], c[1], c[2]);
+    assert!((c - DVec3::new(t.x, t.y, 0.0)).abs().max_element() < 0.1 && c.z == 0.0, "centre {c}");
+    assert_eq!(vertices(&std::fs::read(&repaired).unwrap()), world_v, "--repaired writes the scan where it lies");
+    let base_v = vertices(&obj);
+    assert!(base_v.iter().all(|p| (*p - t).abs().max_element() < 1.1), "the base lies on the scan");
+    // The same scan moved to the origin by hand gives the same base, moved back: the run
+    // computed in the scan's own frame.
+    let centred = d.join("at-origin.obj");
+    write_obj(&centred, &world_v.iter().map(|&p| p - c).collect::<Vec<_>>(), &f);
+    let (code, rc, err, obj_c) = decimate(&d, &centred, "centred", &[]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(rc["input_centre"], serde_json::json!([0.0, 0.0, 0.0]));
+    assert_eq!(r["faces_out"], rc["faces_out"]);
+    assert_eq!(base_v.iter().map(|&p| p - c).collect::<Vec<_>>(), vertices(&obj_c));
+    let (g, gc) = (geometry(&obj), geometry(&obj_c));
+    let not_v = |g: &[String]| g.iter().filter(|l| !l.starts_with("v ")).cloned().collect::<Vec<_>>();
+    assert_eq!(not_v(&g), not_v(&gc), "the same directions and faces");
+    // validate judges the written base against the world scan as the decimator's own check did;
+    // bake writes the base with its UVs where it lies.
+    let json = d.join("v.json");
+    let o = run(&["validate", s(&world), s(&d.join("world.obj")), "--json", s(&json)]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let v0: Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    for k in ["mapped", "ambiguous", "far_hits", "max_abs_d"] {
+        assert_eq!(v0["verdict"][k], r["global"][k], "{k}");
+    }
+    let disp = d.join("d.pfm");
+    let o = run(&["bake", s(&world), s(&d.join("world.obj")), "-o", s(&disp), "--resolution", "256", "--map", s(&map)]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(vertices(&std::fs::read(d.join("d.obj")).unwrap()), base_v);
+    // export: glTF's f32 positions relative to a node translation (at 5.3e6 an f32 position is
+    // rounded to 0.5), so the base read back lies where it was written to f32 at its own size.
+    let glb = d.join("world.glb");
+    let o = run(&["export", s(&d.join("d.obj")), s(&disp), "-o", s(&glb)]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let meshes = dispdec::maps::export::read_glb_meshes(&std::fs::read(&glb).unwrap()).unwrap();
+    let faces: Vec<[u32; 3]> = geometry(&obj).iter().filter_map(|l| l.strip_prefix("f ")).map(|l| {
+        let v: Vec<u32> = l.split_whitespace().map(|c| c.split('/').next().unwrap().parse::<u32>().unwrap() - 1).collect();
+        [v[0], v[1], v[2]]
+    }).collect();
+    let corners: Vec<DVec3> = faces.iter().flatten().map(|&v| base_v[v as usize]).collect();
+    assert_eq!(meshes[0].0.len(), corners.len());
+    let off = meshes[0].0.iter().zip(&corners).map(|(a, b)| a.distance(*b)).fold(0.0, f64::max);
+    assert!(off < 1e-6, "the glTF base lies on the written base: {off}");
+}
+
 #[test]
 fn settings_travel_from_the_base_to_validate_bake_and_reconstruct() {
     let d = tempdir("settings");

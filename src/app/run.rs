@@ -208,6 +208,9 @@ pub struct Report {
     /// How many of its median edge lengths the scan's bounding-box diagonal spans (a scan
     /// beyond `mesh::MAX_EXTENT_IN_EDGES` is refused: a stray vertex far off).
     pub input_extent_in_edges: f64,
+    /// Where the scan was moved on load, for the work (its coordinates less this; zero for a scan
+    /// within `mesh::CENTRE_BEYOND_DIAGONALS` of the origin). The outputs are where the scan is.
+    pub input_centre: [f64; 3],
     /// Warnings about the input (what readers skipped).
     pub warnings: Vec<String>,
     pub collapses: Stats,
@@ -333,7 +336,10 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         if job.options.strict { ", strict" } else { "" },
         settings.obj_line()
     );
-    let obj = mesh::obj_with_normals(&base.positions, &base.directions, &base.faces, &header);
+    // Written where the scan lies: moved back by what its load moved it (exact, see `mesh::centre_for`).
+    let mut world = base.positions.clone();
+    mesh::translate(&mut world, dense.centre);
+    let obj = mesh::obj_with_normals(&world, &base.directions, &base.faces, &header);
     let map_bytes = job.map.as_ref().map(|_| {
         let records = dense
             .dense_of_input
@@ -362,8 +368,10 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         .to_bytes()
     });
     let repaired_obj = job.repaired.as_ref().map(|p| {
+        let mut world = state.dense.pos.clone();
+        mesh::translate(&mut world, dense.centre);
         let text = mesh::obj_with_normals(
-            &state.dense.pos,
+            &world,
             &[],
             &state.dense.faces,
             &format!("{} as decimated by dispdec ({:?})", job.input.display(), job.preparation),
@@ -401,6 +409,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         input_cleanup: dense.cleanup.clone(),
         input_faces: dense.input_face_count,
         input_extent_in_edges: dense.extent_in_edges,
+        input_centre: dense.centre.to_array(),
         warnings: dense.warnings.clone(),
         collapses: state.stats.clone(),
         recheck: RecheckSummary {
@@ -577,6 +586,10 @@ fn load_pair(high_path: &std::path::Path, base_path: &std::path::Path, flags: &F
     let base_name = base_path.display().to_string();
     let r = crate::settings::resolve(flags, base.settings.as_ref(), &base_name);
     let high = mesh::load_scan(high_path, &r.preparation)?;
+    // Judged in the scan's frame: the base moved as the scan was on load (exactly, for a base
+    // dispdec made from this scan: see `mesh::on_world_grid`).
+    let mut base = base;
+    mesh::translate(&mut base.base.positions, -high.centre);
     let mut warnings = base.warnings.clone();
     warnings.extend(r.warnings);
     warnings.extend(high.warnings.iter().cloned());
@@ -615,7 +628,7 @@ fn validate_in_pool(job: &ValidateJob) -> Result<ValidateReport, Error> {
         per_face,
     };
     let mut first_failures = Vec::new();
-    let pos = |p: glam::DVec3| [p.x, p.y, p.z];
+    let pos = |p: glam::DVec3| (p + high.centre).to_array();
     for &v in &verdict.first_unmapped {
         first_failures.push(Failure { kind: "unmapped", index: high.input_index[v as usize], position: pos(high.positions[v as usize]) });
     }
@@ -686,7 +699,7 @@ fn failures_obj(report: &ValidateReport, high: &mesh::DenseMesh) -> String {
         v.failing.unmapped.len(),
     );
     mesh::obj_groups(
-        &high.positions,
+        &high.world_positions(),
         &high.faces,
         &[("flipped", &v.failing.flipped), ("torn", &v.failing.torn), ("unmapped", &around_unmapped)],
         &header,
@@ -877,7 +890,9 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
         map.atlas.size,
         loaded.settings.as_ref().map(|s| s.obj_line()).unwrap_or_default()
     );
-    let obj = mesh::obj_with_uvs(&b.positions, &b.directions, &b.faces, |f, k| map.atlas.uv_up(f, k), &header);
+    let mut world = b.positions.clone();
+    mesh::translate(&mut world, scan.centre);
+    let obj = mesh::obj_with_uvs(&world, &b.directions, &b.faces, |f, k| map.atlas.uv_up(f, k), &header);
     let side_json = serde_json::to_string_pretty(&side).expect("sidecar");
     mesh::write_all_atomic(&[
         (side_path.as_path(), side_json.as_bytes()),
@@ -942,7 +957,7 @@ pub fn reconstruct(
         }
         let rebuilt = crate::maps::reconstruct::reconstruct(b, &map, level, r.normals);
         if let Some(s) = &scan {
-            table.push(crate::maps::reconstruct::compare(&rebuilt, level, &s.positions, &s.faces));
+            table.push(crate::maps::reconstruct::compare(&rebuilt, level, &s.world_positions(), &s.faces));
         }
         last = Some(rebuilt);
     }

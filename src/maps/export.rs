@@ -193,7 +193,8 @@ pub fn export_glb(base: &Base, mode: NormalMode, map: &DispMap, rebuilt: Option<
         ..Default::default()
     });
 
-    // The base, one vertex per face corner.
+    // The base, one vertex per face corner; far from the origin, relative to its nodes' place.
+    let (place, translation) = node_place(&base.positions);
     let mut pos = Vec::with_capacity(3 * base.faces.len());
     let mut nrm = Vec::with_capacity(3 * base.faces.len());
     let mut uv = Vec::with_capacity(3 * base.faces.len());
@@ -202,7 +203,7 @@ pub fn export_glb(base: &Base, mode: NormalMode, map: &DispMap, rebuilt: Option<
         let p = t.map(|v| base.positions[v as usize]);
         let face_n = crate::geometry::face_normal(p[0], p[1], p[2]);
         for k in 0..3 {
-            pos.push(f3(p[k]));
+            pos.push(f3(p[k] - place));
             let n = match mode {
                 NormalMode::Interpolated => base.directions[t[k] as usize].normalize_or_zero(),
                 NormalMode::Constant => face_n,
@@ -214,12 +215,12 @@ pub fn export_glb(base: &Base, mode: NormalMode, map: &DispMap, rebuilt: Option<
     }
     let indices: Vec<u32> = (0..pos.len() as u32).collect();
     let base_mesh = push_mesh(&mut root, &mut bin, "base", &pos, Some(&nrm), Some(&uv), &indices, Some(material));
-    let mut nodes = vec![root.push(json::Node { mesh: Some(base_mesh), name: Some("base".into()), ..Default::default() })];
+    let mut nodes = vec![root.push(json::Node { mesh: Some(base_mesh), name: Some("base".into()), translation, ..Default::default() })];
     let rebuilt_faces = rebuilt.map(|(level, r)| {
-        let p: Vec<[f32; 3]> = r.positions.iter().map(|&v| f3(v)).collect();
+        let p: Vec<[f32; 3]> = r.positions.iter().map(|&v| f3(v - place)).collect();
         let idx: Vec<u32> = r.faces.iter().flatten().copied().collect();
         let m = push_mesh(&mut root, &mut bin, &format!("rebuilt at level {level}"), &p, None, None, &idx, None);
-        nodes.push(root.push(json::Node { mesh: Some(m), name: Some(format!("rebuilt at level {level}")), ..Default::default() }));
+        nodes.push(root.push(json::Node { mesh: Some(m), name: Some(format!("rebuilt at level {level}")), translation, ..Default::default() }));
         r.faces.len()
     });
     while !bin.len().is_multiple_of(4) {
@@ -248,11 +249,27 @@ pub fn export_glb(base: &Base, mode: NormalMode, map: &DispMap, rebuilt: Option<
     (out, info)
 }
 
+/// Where the meshes' nodes are placed: zero (no translation) for a base near the origin; for
+/// one in world coordinates ([`crate::mesh::centre_for`]: more than 16 of its diagonals off)
+/// its box's middle rounded to f32, the node's `translation`, and the vertices relative to it.
+/// glTF's positions are f32: at a UTM northing of 5.3e6 m they would be rounded to 0.5 m; this
+/// way the mesh keeps f32's precision at its own size and a viewer that adds the translation
+/// in f64 puts it where it lies.
+fn node_place(positions: &[DVec3]) -> (DVec3, Option<[f32; 3]>) {
+    let (lo, hi) = crate::mesh::bbox(positions.iter().copied());
+    let c = crate::mesh::centre_for(lo, hi);
+    if c == DVec3::ZERO {
+        return (DVec3::ZERO, None);
+    }
+    let t = [c.x as f32, c.y as f32, c.z as f32];
+    (DVec3::new(t[0] as f64, t[1] as f64, t[2] as f64), Some(t))
+}
+
 /// One mesh of a `.glb`: positions and triangles.
 pub type GlbMesh = (Vec<DVec3>, Vec<[u32; 3]>);
 
-/// The triangle meshes of a `.glb` (every node's mesh, in scene order; positions and u32 or
-/// u16 indices), for `dispdec render` and the tests. Only what dispdec writes is needed:
+/// The triangle meshes of a `.glb` (every node's mesh, in scene order, moved by the node's
+/// translation; positions and u32 or u16 indices), for `dispdec render` and the tests. Only what dispdec writes is needed:
 /// embedded BIN chunk, tightly packed accessors.
 pub fn read_glb_meshes(bytes: &[u8]) -> Result<Vec<GlbMesh>, String> {
     let u = |o: usize| -> Result<u32, String> {
@@ -285,7 +302,8 @@ pub fn read_glb_meshes(bytes: &[u8]) -> Result<Vec<GlbMesh>, String> {
                 .chunks_exact(12)
                 .map(|c| {
                     let f = |k: usize| f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().unwrap()) as f64;
-                    DVec3::new(f(0), f(1), f(2))
+                    let t = node.translation.unwrap_or_default().map(f64::from);
+                    DVec3::new(f(0) + t[0], f(1) + t[1], f(2) + t[2])
                 })
                 .collect();
             let ia = root.accessors.get(p.indices.ok_or("no indices")?.value()).ok_or("bad accessor")?;

@@ -52,7 +52,19 @@ pub struct DenseMesh {
     /// How many median edge lengths its bounding-box diagonal spans (at most
     /// [`MAX_EXTENT_IN_EDGES`]).
     pub extent_in_edges: f64,
+    /// Where the scan was moved on load: `positions` are the file's less this ([`centre_for`];
+    /// zero for a scan near the origin). Every output in the scan's coordinates adds it back.
+    pub centre: DVec3,
     pub warnings: Vec<String>,
+}
+
+impl DenseMesh {
+    /// The positions in the file's coordinates.
+    pub fn world_positions(&self) -> Vec<DVec3> {
+        let mut p = self.positions.clone();
+        translate(&mut p, self.centre);
+        p
+    }
 }
 
 impl Mesh {
@@ -259,33 +271,56 @@ fn check_extent(path: &Path, diag: f64, positions: &[DVec3], faces: &[[u32; 3]],
     ))
 }
 
-/// The farthest a scan may lie from the origin, in its own bounding-box diagonals (its largest
-/// coordinate's magnitude over the diagonal).
-/// Why: f64 keeps 16 digits of a coordinate; the checks compare positions to 1e-12 of dmax
-/// (`SAME_POINT_REL`) and solutions to 1e-7 (`SAME_SOLUTION_REL`). Measured on the 968-face
-/// `dispdec sample --faces 1000 --seed 3` (diagonal 2.9) moved by (t, t, t): valid bases at
-/// t = 1e5 and 1e6 (3.4e4 and 3.4e5 diagonals off; 145 and 150 faces against 139 at the
-/// origin), a base with 4 torn dense faces at 3e6 (1.0e6 diagonals), valid at 1e7, torn at 1e8,
-/// 1e9 and 1e12 (15, 9, 22 faces; the final check fails, exit 1); the bunny moved by 1e6 (4.0e6
-/// diagonals; `--ring-directions keep`, two threads): 308 faces in 300.5 s, 6 torn (at its own
-/// place 133 faces in ~11 s). Ten times below the first failure. A scan in world coordinates
-/// (a 3 m statue at a UTM northing of 5.3e6 m: 1.8e6) must be moved near the origin first.
-pub const MAX_OFFSET_IN_DIAGONALS: f64 = 1e5;
+/// How far a scan may lie from the origin, in its own bounding-box diagonals (its largest
+/// coordinate's magnitude over the diagonal), before it is moved to the origin on load.
+/// Why: f64 keeps 16 digits of a coordinate and the checks compare positions to 1e-12 of dmax
+/// (`SAME_POINT_REL`): computed where they lie, scans in world coordinates lose that. Measured
+/// on the 968-face `dispdec sample --faces 1000 --seed 3` (diagonal 2.9) moved by (t, t, t), as
+/// the release of 2026-12-07 decimated it in place: a base with 4 torn dense faces at t = 3e6
+/// (1.0e6 diagonals off), torn ones at 1e8, 1e9 and 1e12; the bunny moved by 1e6 (4.0e6
+/// diagonals): 308 faces in 300.5 s, 6 torn (133 faces in ~11 s at its own place). Well below
+/// any of that, and above every scan made at its own origin (the scans in ../shared/data lie
+/// 0.32–2.94 of their diagonals from it, the turbine blade farthest; the shipped sample
+/// 0.35), whose numbers stay exactly those of earlier releases.
+pub const CENTRE_BEYOND_DIAGONALS: f64 = 16.0;
 
-/// The scan, whose box is [lo, hi], lies within [`MAX_OFFSET_IN_DIAGONALS`] of the origin.
-fn check_offset(path: &Path, lo: DVec3, hi: DVec3) -> Result<(), Error> {
+/// Where a scan with bounding box [lo, hi] is moved on load: its coordinates less this vector.
+/// Zero for a scan within [`CENTRE_BEYOND_DIAGONALS`] of the origin. Else, on each axis whose
+/// coordinates all lie within a factor of two of the box's middle, that middle; 0 on the others
+/// (those lie within about a diagonal of the origin). So every coordinate's shift x − c is exact
+/// (Sterbenz's lemma: y/2 ≤ x ≤ 2y makes x − y exact), and (x − c) + c gives x back, bit for bit.
+pub fn centre_for(lo: DVec3, hi: DVec3) -> DVec3 {
     let (diag, far) = (lo.distance(hi), lo.abs().max(hi.abs()).max_element());
-    if far <= MAX_OFFSET_IN_DIAGONALS * diag {
-        return Ok(());
+    if far <= CENTRE_BEYOND_DIAGONALS * diag {
+        return DVec3::ZERO;
     }
-    let c = 0.5 * (lo + hi);
-    Err(input_err(
-        path,
-        format!(
-            "it lies {:.3e} of its own size from the origin (at most {MAX_OFFSET_IN_DIAGONALS:.0e}: its box's centre ({}, {}, {}), diagonal {diag}): 64-bit coordinates there cannot carry its detail to the checks' tolerances, and its bases can come out torn; move it near the origin first (subtract the centre) and back after",
-            far / diag, c.x, c.y, c.z
-        ),
-    ))
+    let axis = |lo: f64, hi: f64| {
+        let mid = 0.5 * lo + 0.5 * hi;
+        let within_two = |x: f64| 0.5 * mid <= x && x <= 2.0 * mid || 2.0 * mid <= x && x <= 0.5 * mid;
+        if within_two(lo) && within_two(hi) {
+            mid
+        } else {
+            0.0
+        }
+    };
+    DVec3::new(axis(lo.x, hi.x), axis(lo.y, hi.y), axis(lo.z, hi.z))
+}
+
+/// A point moved by the scan's centre (`p` − `centre`, the scan's own frame), rounded so that
+/// it comes back exactly: `(p + centre) − centre` on each moved axis. A point made in the
+/// scan's frame (a midpoint placement) is written at p + centre; rounded this way, that
+/// written point read back and moved is `p` itself, so a base checked is the base written.
+/// Unchanged where `centre` is zero.
+pub fn on_world_grid(p: DVec3, centre: DVec3) -> DVec3 {
+    let axis = |x: f64, c: f64| if c == 0.0 { x } else { (x + c) - c };
+    DVec3::new(axis(p.x, centre.x), axis(p.y, centre.y), axis(p.z, centre.z))
+}
+
+/// `points` moved by `by` (added), in place; nothing where `by` is zero.
+pub fn translate(points: &mut [DVec3], by: DVec3) {
+    if by != DVec3::ZERO {
+        points.iter_mut().for_each(|p| *p += by);
+    }
 }
 
 fn degenerate_err(path: &Path, f: [u32; 3], fi: usize, hint: bool) -> Error {
@@ -365,7 +400,9 @@ fn prepare(path: &Path, mesh: Mesh, prep: &Preparation) -> Result<DenseMesh, Err
     }
     let (lo, hi) = bbox(positions.iter().copied());
     let extent_in_edges = check_extent(path, lo.distance(hi), &positions, &faces, &input_index)?;
-    check_offset(path, lo, hi)?;
+    let centre = centre_for(lo, hi);
+    let mut positions = positions;
+    translate(&mut positions, -centre);
     let topology = topology_checked(path, &positions, &faces, &input_index, prep, cleanup.welded_vertices)?;
     repair::count_components(&faces, &mut cleanup);
     let mut dense_of_input = vec![u32::MAX; n];
@@ -388,6 +425,7 @@ fn prepare(path: &Path, mesh: Mesh, prep: &Preparation) -> Result<DenseMesh, Err
         topology,
         cleanup,
         extent_in_edges,
+        centre,
         warnings: mesh.warnings,
     })
 }
@@ -780,19 +818,34 @@ mod tests {
     }
 
     #[test]
-    fn a_scan_far_from_the_origin_is_refused_and_its_centre_named() {
-        // The flat grid (diagonal √32) moved by (t, t, t): its largest coordinate is t + 4.
-        let moved = |t: f64| {
-            let mut m = grid_with_spike(0.0);
-            m.positions.iter_mut().for_each(|p| *p += DVec3::splat(t));
+    fn a_scan_far_from_the_origin_is_moved_to_it_and_back_exactly() {
+        // The grid (x, y in 0..4, z = 0 but for a spike of 1 at its middle) moved by `t`.
+        let moved = |t: DVec3| {
+            let mut m = grid_with_spike(1.0);
+            m.positions.iter_mut().for_each(|p| *p += t);
             m
         };
         let path = Path::new("far.obj");
-        let limit = MAX_OFFSET_IN_DIAGONALS * 32f64.sqrt();
-        assert!(check_and_compact(path, moved(limit - 8.0)).is_ok());
-        let err = check_and_compact(path, moved(limit)).unwrap_err().to_string();
-        let c = limit + 2.0;
-        assert!(err.contains("far.obj") && err.contains(&format!("centre ({c}, {c}, {})", limit)) && err.contains("move it near the origin"), "{err}");
+        // Within 16 diagonals of the origin: not moved, every coordinate as read.
+        let t = DVec3::new(CENTRE_BEYOND_DIAGONALS * 33f64.sqrt() - 4.0, 0.0, 0.0);
+        let near = check_and_compact(path, moved(t)).unwrap();
+        assert_eq!(near.centre, DVec3::ZERO);
+        assert_eq!(near.positions, moved(t).positions);
+        // A UTM-like place (easting, northing; z near 0): x and y moved by their box's middle,
+        // z (−0.25..0.75) left; each coordinate moved exactly and back.
+        let t = DVec3::new(512_345.678_9, 5_300_000.123_4, -0.25);
+        let (input, far) = (moved(t), check_and_compact(path, moved(t)).unwrap());
+        assert_eq!(far.centre, DVec3::new(input.positions[0].x + 2.0, input.positions[0].y + 2.0, 0.0), "the box's middle in x and y");
+        for (p, q) in far.positions.iter().zip(&input.positions) {
+            assert!(p.abs().max_element() <= 2.0 && *p + far.centre == *q, "{p} + {} != {q}", far.centre);
+        }
+        assert_eq!(far.world_positions(), input.positions);
+        // A midpoint made in the moved frame, rounded to what the file will hold: written at
+        // p + centre, read back and moved, it is p again.
+        let m = on_world_grid(0.5 * (far.positions[0] + far.positions[6]), far.centre);
+        assert_eq!((m + far.centre) - far.centre, m);
+        assert!(m.distance(0.5 * (far.positions[0] + far.positions[6])) < 1e-9);
+        assert_eq!(on_world_grid(DVec3::new(0.1, -0.0, 3.0), DVec3::ZERO).to_array().map(f64::to_bits), [0.1f64, -0.0, 3.0].map(f64::to_bits));
     }
 
     #[test]
