@@ -431,6 +431,60 @@ fn a_scan_in_world_coordinates_is_decimated_where_it_lies() {
 }
 
 #[test]
+fn stl_binary_and_ascii_give_the_base_of_the_same_mesh_as_obj() {
+    // The bumpy sphere as STL writes it: a soup, one vertex per face corner, in f32; and the
+    // same mesh as an OBJ with its vertices in the order of their first corner (the order the
+    // weld keeps) and the same f32 values.
+    let d = tempdir("stl");
+    let (v, f) = bumpy_sphere();
+    let v32: Vec<[f32; 3]> = v.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect();
+    let mut bin = b"solid bumpy sphere (a binary header that starts like ASCII)".to_vec();
+    bin.resize(80, b' ');
+    bin.extend_from_slice(&(f.len() as u32).to_le_bytes());
+    let mut ascii = String::from("solid bumpy\n");
+    for t in &f {
+        bin.extend_from_slice(&[0u8; 12]);
+        ascii.push_str("facet normal 0 0 0\n outer loop\n");
+        for &w in t {
+            let p = v32[w as usize];
+            p.iter().for_each(|c| bin.extend_from_slice(&c.to_le_bytes()));
+            ascii.push_str(&format!("  vertex {:e} {:e} {:e}\n", p[0], p[1], p[2]));
+        }
+        bin.extend_from_slice(&[0u8; 2]);
+        ascii.push_str(" endloop\nendfacet\n");
+    }
+    ascii.push_str("endsolid bumpy\n");
+    let (b_path, a_path) = (d.join("bin.stl"), d.join("text.stl"));
+    std::fs::write(&b_path, &bin).unwrap();
+    std::fs::write(&a_path, &ascii).unwrap();
+    let mut order = vec![u32::MAX; v.len()];
+    let mut first = Vec::new();
+    for &w in f.iter().flatten() {
+        if order[w as usize] == u32::MAX {
+            order[w as usize] = first.len() as u32;
+            first.push(w);
+        }
+    }
+    let obj = d.join("mesh.obj");
+    let as_f64 = |p: [f32; 3]| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+    write_obj(&obj, &first.iter().map(|&w| as_f64(v32[w as usize])).collect::<Vec<_>>(), &f.iter().map(|t| t.map(|w| order[w as usize])).collect::<Vec<_>>());
+    let (code, r_obj, err, base_obj) = decimate(&d, &obj, "from-obj", &[]);
+    assert_eq!(code, 0, "{err}");
+    for (path, tag) in [(&b_path, "from-bin"), (&a_path, "from-text")] {
+        let (code, r, err, base) = decimate(&d, path, tag, &[]);
+        assert_eq!(code, 0, "{tag}: {err}");
+        assert_eq!(geometry(&base), geometry(&base_obj), "{tag}: the OBJ's base");
+        assert_eq!(r["input_cleanup"]["welded_vertices"], 3 * f.len() - v.len(), "{tag}: every corner but one per vertex welded");
+        assert_eq!(r["faces_out"], r_obj["faces_out"]);
+    }
+    // A truncated binary STL: exit 2, saying so.
+    let cut = d.join("cut.stl");
+    std::fs::write(&cut, &bin[..bin.len() - 7]).unwrap();
+    let (code, _, err, _) = decimate(&d, &cut, "cut", &[]);
+    assert!(code == 2 && err.contains("cut.stl") && err.contains("(truncated?)"), "{err}");
+}
+
+#[test]
 fn settings_travel_from_the_base_to_validate_bake_and_reconstruct() {
     let d = tempdir("settings");
     let (v, f) = bumpy_sphere();

@@ -5,6 +5,7 @@
 mod obj;
 mod ply;
 pub mod repair;
+mod stl;
 pub mod sample;
 
 use crate::geometry::{face_normal, maxmin_direction};
@@ -141,6 +142,11 @@ pub fn load_raw(path: &Path) -> Result<Mesh, Error> {
     }
     let name = path.to_string_lossy().to_ascii_lowercase();
     let name = name.strip_suffix(".gz").unwrap_or(&name);
+    if name.ends_with(".stl") || head.starts_with(b"solid") {
+        let mut bytes = Vec::new();
+        r.read_to_end(&mut bytes).map_err(|e| input_err(path, e.to_string()))?;
+        return stl::load_stl(path, bytes);
+    }
     if name.ends_with(".ply") {
         return Err(input_err(path, "not a PLY file: the first line is not 'ply'"));
     }
