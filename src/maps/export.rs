@@ -269,8 +269,8 @@ fn node_place(positions: &[DVec3]) -> (DVec3, Option<[f32; 3]>) {
 pub type GlbMesh = (Vec<DVec3>, Vec<[u32; 3]>);
 
 /// The triangle meshes of a `.glb` (every node's mesh, in scene order, moved by the node's
-/// translation; positions and u32 or u16 indices), for `dispdec render` and the tests. Only what dispdec writes is needed:
-/// embedded BIN chunk, tightly packed accessors.
+/// translation; positions and u32 or u16 indices), for `dispdec render` and the tests. Only
+/// what dispdec writes is needed: embedded BIN chunk, tightly packed accessors.
 pub fn read_glb_meshes(bytes: &[u8]) -> Result<Vec<GlbMesh>, String> {
     let u = |o: usize| -> Result<u32, String> {
         bytes.get(o..o + 4).map(|b| u32::from_le_bytes(b.try_into().unwrap())).ok_or_else(|| "truncated GLB".to_string())
