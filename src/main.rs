@@ -182,7 +182,7 @@ enum Cmd {
     /// prints the answer as JSON.
     #[command(hide = true)]
     ProbeGpu,
-    /// Decimate INPUT (OBJ, PLY or STL, optionally .gz) into a base mesh.
+    /// Decimate INPUT (OBJ, PLY, STL or glTF, optionally .gz) into a base mesh.
     Decimate {
         input: PathBuf,
         /// The base mesh (OBJ with one vn per v and f v//vn).

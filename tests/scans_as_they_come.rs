@@ -485,6 +485,56 @@ fn stl_binary_and_ascii_give_the_base_of_the_same_mesh_as_obj() {
 }
 
 #[test]
+fn a_glb_scan_gives_the_base_of_the_same_mesh_as_obj() {
+    // The bumpy sphere as a GLB (indexed u32 triangles, f32 positions, one node placed by a
+    // translation, as scanning apps export) and as an OBJ of the same f32 values, moved.
+    let d = tempdir("glb");
+    let (v, f) = bumpy_sphere();
+    let v32: Vec<[f32; 3]> = v.iter().map(|p| [p.x as f32, p.y as f32, p.z as f32]).collect();
+    let mut bin: Vec<u8> = v32.iter().flatten().flat_map(|c| c.to_le_bytes()).collect();
+    let idx_at = bin.len();
+    bin.extend(f.iter().flatten().flat_map(|i| i.to_le_bytes()));
+    let json = format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0,"translation":[0.5,-2,3]}}],"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],"accessors":[{{"bufferView":0,"componentType":5126,"count":{nv},"type":"VEC3","min":[-2,-2,-2],"max":[2,2,2]}},{{"bufferView":1,"componentType":5125,"count":{ni},"type":"SCALAR"}}],"bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":{idx_at}}},{{"buffer":0,"byteOffset":{idx_at},"byteLength":{nb}}}],"buffers":[{{"byteLength":{len}}}]}}"#,
+        nv = v.len(),
+        ni = 3 * f.len(),
+        nb = bin.len() - idx_at,
+        len = bin.len()
+    );
+    let mut json = json.into_bytes();
+    while json.len() % 4 != 0 {
+        json.push(b' ');
+    }
+    let mut glb = b"glTF".to_vec();
+    glb.extend(2u32.to_le_bytes());
+    glb.extend(((12 + 8 + json.len() + 8 + bin.len()) as u32).to_le_bytes());
+    glb.extend((json.len() as u32).to_le_bytes());
+    glb.extend(b"JSON");
+    glb.extend(&json);
+    glb.extend((bin.len() as u32).to_le_bytes());
+    glb.extend(b"BIN\0");
+    glb.extend(&bin);
+    let scan = d.join("scan.glb");
+    std::fs::write(&scan, &glb).unwrap();
+    let t = DVec3::new(0.5, -2.0, 3.0);
+    let obj = d.join("scan.obj");
+    write_obj(&obj, &v32.iter().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64) + t).collect::<Vec<_>>(), &f);
+    let (code, r_obj, err, base_obj) = decimate(&d, &obj, "from-obj", &[]);
+    assert_eq!(code, 0, "{err}");
+    let (code, r, err, base) = decimate(&d, &scan, "from-glb", &[]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(geometry(&base), geometry(&base_obj), "the OBJ's base, byte for byte");
+    assert_eq!((r["faces_in"].clone(), r["input_cleanup"]["welded_vertices"].clone()), (r_obj["faces_in"].clone(), 0.into()));
+    // validate reads it too; a GLB cut short is refused (exit 2) naming the file.
+    let o = run(&["validate", s(&scan), s(&d.join("from-glb.obj"))]);
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let cut = d.join("cut.glb");
+    std::fs::write(&cut, &glb[..glb.len() - 100]).unwrap();
+    let (code, _, err, _) = decimate(&d, &cut, "cut", &[]);
+    assert!(code == 2 && err.contains("cut.glb") && !err.contains("panicked"), "{err}");
+}
+
+#[test]
 fn settings_travel_from_the_base_to_validate_bake_and_reconstruct() {
     let d = tempdir("settings");
     let (v, f) = bumpy_sphere();

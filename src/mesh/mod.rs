@@ -2,6 +2,7 @@
 //! output. The data flows one way: file → [`Mesh`] (as written) → weld → repair (when asked)
 //! → checks → [`DenseMesh`].
 
+mod gltf;
 mod obj;
 mod ply;
 pub mod repair;
@@ -142,6 +143,11 @@ pub fn load_raw(path: &Path) -> Result<Mesh, Error> {
     }
     let name = path.to_string_lossy().to_ascii_lowercase();
     let name = name.strip_suffix(".gz").unwrap_or(&name);
+    if name.ends_with(".glb") || name.ends_with(".gltf") || head.starts_with(b"glTF") {
+        let mut bytes = Vec::new();
+        r.read_to_end(&mut bytes).map_err(|e| input_err(path, e.to_string()))?;
+        return gltf::load_gltf(path, &bytes);
+    }
     if name.ends_with(".stl") || head.starts_with(b"solid") {
         let mut bytes = Vec::new();
         r.read_to_end(&mut bytes).map_err(|e| input_err(path, e.to_string()))?;
