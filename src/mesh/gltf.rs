@@ -9,6 +9,7 @@
 use super::{input_err, Mesh};
 use crate::Error;
 use glam::{DMat4, DVec3};
+use gltf::accessor::{DataType, Dimensions};
 use gltf::mesh::Mode;
 use std::path::Path;
 
@@ -17,12 +18,24 @@ const GEOMETRY_EXTENSIONS: [&str; 3] = ["KHR_draco_mesh_compression", "EXT_mesho
 
 /// Reads a glTF or GLB file's bytes (already unzipped) into a [`Mesh`].
 pub fn load_gltf(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
-    let g = gltf::Gltf::from_slice(bytes).map_err(|e| input_err(path, format!("not a valid glTF file: {e}")))?;
-    if let Some(ext) = g.document.extensions_required().find(|e| GEOMETRY_EXTENSIONS.contains(e)) {
+    let invalid = |e: gltf::Error| input_err(path, format!("not a valid glTF file: {e}"));
+    let g = gltf::Gltf::from_slice_without_validation(bytes).map_err(invalid)?;
+    let root = g.document.into_json();
+    // gltf-json's validation reads each POSITION accessor without checking its index (a
+    // panic, found by garbling a .gltf at random): checked here before it runs.
+    for (mi, m) in root.meshes.iter().enumerate() {
+        for (pi, p) in m.primitives.iter().enumerate() {
+            if let Some(a) = p.attributes.values().find(|a| a.value() >= root.accessors.len()) {
+                return Err(input_err(path, format!("mesh {mi} primitive {pi} names accessor {}, but there are {}", a.value(), root.accessors.len())));
+            }
+        }
+    }
+    let document = gltf::Document::from_json(root).map_err(invalid)?;
+    if let Some(ext) = document.extensions_required().find(|e| GEOMETRY_EXTENSIONS.contains(e)) {
         return Err(input_err(path, format!("its meshes are stored with {ext}, which dispdec does not read: export them uncompressed")));
     }
     let base = path.parent().map(|p| if p.as_os_str().is_empty() { Path::new(".") } else { p });
-    let buffers = gltf::import_buffers(&g.document, base, g.blob.clone()).map_err(|e| input_err(path, format!("cannot read its buffers: {e}")))?;
+    let buffers = gltf::import_buffers(&document, base, g.blob).map_err(|e| input_err(path, format!("cannot read its buffers: {e}")))?;
     let mut mesh = Mesh::default();
     let mut skipped = 0usize;
     let mut visit = |node: &gltf::Node, world: DMat4, mesh: &mut Mesh| -> Result<(), Error> {
@@ -36,6 +49,15 @@ pub fn load_gltf(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
                 continue;
             }
             let what = || format!("mesh {} primitive {}", m.index(), p.index());
+            let Some(pos_acc) = p.get(&gltf::Semantic::Positions) else {
+                return Err(input_err(path, format!("{} has no POSITION", what())));
+            };
+            let vec3_f32 = pos_acc.dimensions() == Dimensions::Vec3 && pos_acc.data_type() == DataType::F32;
+            check_accessor(&pos_acc, vec3_f32, &buffers).map_err(|e| input_err(path, format!("{}: POSITION {e}", what())))?;
+            if let Some(ia) = p.indices() {
+                let scalar = ia.dimensions() == Dimensions::Scalar && matches!(ia.data_type(), DataType::U8 | DataType::U16 | DataType::U32);
+                check_accessor(&ia, scalar, &buffers).map_err(|e| input_err(path, format!("{}: indices {e}", what())))?;
+            }
             let reader = p.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
             let Some(positions) = reader.read_positions() else {
                 return Err(input_err(path, format!("{} has no POSITION", what())));
@@ -59,26 +81,27 @@ pub fn load_gltf(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
         }
         Ok(())
     };
-    fn walk(node: gltf::Node, parent: DMat4, visit: &mut dyn FnMut(&gltf::Node, DMat4, &mut Mesh) -> Result<(), Error>, mesh: &mut Mesh, depth: usize) -> Result<(), Error> {
-        let local = DMat4::from_cols_array_2d(&node.transform().matrix().map(|c| c.map(|x| x as f64)));
-        let world = parent * local;
-        visit(&node, world, mesh)?;
-        // glTF node trees are acyclic (the crate validates it); the depth bound is a guard.
-        if depth < 256 {
-            for child in node.children() {
-                walk(child, world, visit, mesh, depth + 1)?;
-            }
-        }
-        Ok(())
-    }
-    match g.document.default_scene().or_else(|| g.document.scenes().next()) {
+    // glTF's nodes form trees (a node has one parent at most): a node met twice (a cycle, or
+    // one shared by two parents, which could multiply the walk) is refused.
+    let mut seen = vec![false; document.nodes().len()];
+    let mut stack: Vec<(gltf::Node, DMat4)> = Vec::new();
+    match document.default_scene().or_else(|| document.scenes().next()) {
         Some(scene) => {
-            for node in scene.nodes() {
-                walk(node, DMat4::IDENTITY, &mut visit, &mut mesh, 0)?;
+            stack.extend(scene.nodes().map(|n| (n, DMat4::IDENTITY)));
+            stack.reverse();
+            while let Some((node, parent)) = stack.pop() {
+                if std::mem::replace(&mut seen[node.index()], true) {
+                    return Err(input_err(path, format!("node {} appears twice in the scene (a glTF node has one parent at most)", node.index())));
+                }
+                let world = parent * DMat4::from_cols_array_2d(&node.transform().matrix().map(|c| c.map(|x| x as f64)));
+                visit(&node, world, &mut mesh)?;
+                let at = stack.len();
+                stack.extend(node.children().map(|c| (c, world)));
+                stack[at..].reverse();
             }
         }
         None => {
-            for node in g.document.nodes() {
+            for node in document.nodes() {
                 visit(&node, DMat4::from_cols_array_2d(&node.transform().matrix().map(|c| c.map(|x| x as f64))), &mut mesh)?;
             }
         }
@@ -90,6 +113,41 @@ pub fn load_gltf(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
         return Err(input_err(path, "the glTF file has no triangles"));
     }
     Ok(mesh)
+}
+
+/// Whether accessor `a` can be read as it says: of the type its use needs (`typed`), not sparse,
+/// and every element inside its buffer view and the view inside its buffer, at a stride no
+/// shorter than an element. The gltf crate's reader asserts these (a panic on a garbled file,
+/// found by garbling one at random) rather than reporting them.
+fn check_accessor(a: &gltf::Accessor, typed: bool, buffers: &[gltf::buffer::Data]) -> Result<(), String> {
+    let n = a.index();
+    if !typed {
+        return Err(format!("accessor {n} is of type {:?} {:?}, which dispdec does not read there", a.data_type(), a.dimensions()));
+    }
+    if a.sparse().is_some() {
+        return Err(format!("accessor {n} is sparse, which dispdec does not read"));
+    }
+    let Some(view) = a.view() else { return Err(format!("accessor {n} has no buffer view")) };
+    let size = a.size();
+    let stride = view.stride().unwrap_or(size);
+    let data = buffers.get(view.buffer().index()).map_or(0, |d| d.len());
+    let view_end = view.offset().checked_add(view.length());
+    let last = a.count().checked_sub(1).map(|k| k.checked_mul(stride).and_then(|x| x.checked_add(a.offset())).and_then(|x| x.checked_add(size)));
+    let inside = match last {
+        None => true,
+        Some(end) => end.is_some_and(|e| e <= view.length()),
+    };
+    if stride < size || view_end.is_none_or(|e| e > data) || !inside {
+        return Err(format!(
+            "accessor {n} ({} elements of {size} bytes from byte {} at a stride of {stride}) does not fit its buffer view {} ({} bytes from byte {} of a buffer of {data})",
+            a.count(),
+            a.offset(),
+            view.index(),
+            view.length(),
+            view.offset()
+        ));
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -122,6 +180,18 @@ mod tests {
         // squares point the same way (+z), as the mirrored square's do when drawn.
         assert_eq!(m.faces, vec![[0, 1, 2], [0, 2, 3], [4, 6, 5], [4, 7, 6]]);
         assert_eq!(m.warnings.len(), 1, "the lines primitive skipped: {:?}", m.warnings);
+        // A POSITION naming an accessor that is not there: refused (gltf-json's validation
+        // panicked on it).
+        let e = load_gltf(&path, json.replacen(r#""POSITION":0"#, r#""POSITION":5"#, 1).as_bytes()).unwrap_err().to_string();
+        assert!(e.contains("mesh 0 primitive 0 names accessor 5, but there are 2"), "{e}");
+        // A stride shorter than a position (gltf's reader asserted on it): refused, saying so.
+        let short = json.replacen(r#""byteOffset":0,"byteLength":48}"#, r#""byteOffset":0,"byteLength":48,"byteStride":4}"#, 1);
+        let e = load_gltf(&path, short.as_bytes()).unwrap_err().to_string();
+        assert!(e.contains("POSITION accessor 0 (4 elements of 12 bytes from byte 0 at a stride of 4) does not fit"), "{e}");
+        // B also a root of the scene (two parents): refused, not walked twice.
+        let twice = json.replace(r#""scenes":[{"nodes":[0]}]"#, r#""scenes":[{"nodes":[0,1]}]"#);
+        let e = load_gltf(&path, twice.as_bytes()).unwrap_err().to_string();
+        assert!(e.contains("node 1 appears twice"), "{e}");
         // A compressed file is refused by name.
         let draco = json.replace(r#""asset":{"version":"2.0"},"#, r#""asset":{"version":"2.0"},"extensionsUsed":["KHR_draco_mesh_compression"],"extensionsRequired":["KHR_draco_mesh_compression"],"#);
         let e = load_gltf(&path, draco.as_bytes()).unwrap_err().to_string();
