@@ -144,6 +144,31 @@ fn a_stray_vertex_far_off_is_refused() {
 }
 
 #[test]
+fn a_scan_of_32_bit_floats_far_off_is_refused_saying_why() {
+    // A 5×5 grid of 0.2 spacing at a UTM-like place, written as f32 values (as a binary PLY or
+    // STL would hold it): f32's grid there is 0.5, vertices fall onto one another and faces
+    // collapse. The message says why, rather than suggest --repair.
+    let d = tempdir("f32far");
+    let mut text = String::new();
+    for y in 0..5 {
+        for x in 0..5 {
+            let c = |k: i32| (5.3e6 + 0.2 * k as f64) as f32 as f64;
+            text.push_str(&format!("v {} {} 0\n", c(x), c(y)));
+        }
+    }
+    for y in 0..4 {
+        for x in 0..4 {
+            let a = 5 * y + x + 1;
+            text.push_str(&format!("f {a} {} {}\nf {a} {} {}\n", a + 1, a + 6, a + 6, a + 5));
+        }
+    }
+    let p = write(&d, "utm-f32.obj", &text);
+    expect_rejected(&d, &p, "its coordinates are all 32-bit floats, which 5300001 from the origin lie on a grid of 0.5");
+    let err = String::from_utf8_lossy(&run(&["decimate", p.to_str().unwrap(), "-o", d.join("b.obj").to_str().unwrap()]).stderr).to_string();
+    assert!(err.contains("is degenerate") && !err.contains("--repair"), "{err}");
+}
+
+#[test]
 fn face_that_cannot_be_triangulated() {
     let d = tempdir("twogon");
     let p = write(&d, "twogon.obj", &format!("{TET_V}f 1 3 2\nf 1 2\n"));

@@ -195,7 +195,7 @@ pub fn load_base(path: &Path) -> Result<LoadedBase, Error> {
     check_finite(path, &mesh)?;
     let (positions, faces, input_index) = compact(&mesh.positions, &mesh.faces, &[], &[]);
     if let Some(fi) = faces.iter().position(|f| repair::is_degenerate(&positions, *f)) {
-        return Err(degenerate_err(path, faces[fi], fi, false));
+        return Err(degenerate_err(path, faces[fi], fi, false, None));
     }
     let normals = if mesh.normals.len() == mesh.positions.len() { input_index.iter().map(|&v| mesh.normals[v as usize]).collect() } else { Vec::new() };
     let manifold = Topology::build(positions.len(), &faces).map(|_| ()).map_err(|e| e.to_string());
@@ -335,10 +335,41 @@ pub fn translate(points: &mut [DVec3], by: DVec3) {
     }
 }
 
-fn degenerate_err(path: &Path, f: [u32; 3], fi: usize, hint: bool) -> Error {
+/// `hint`: name `--repair`; `note`: why the faces collapsed ([`f32_grid_note`]), said instead.
+fn degenerate_err(path: &Path, f: [u32; 3], fi: usize, hint: bool, note: Option<String>) -> Error {
     let how = if f[0] == f[1] || f[1] == f[2] || f[0] == f[2] { "it repeats a vertex" } else { "it has zero area" };
-    let fix = if hint { " (--repair drops degenerate faces)" } else { "" };
+    let fix = match note {
+        Some(n) => format!(", and {n}"),
+        None if hint => " (--repair drops degenerate faces)".into(),
+        None => String::new(),
+    };
     input_err(path, format!("face {fi} is degenerate: {how}{fix}"))
+}
+
+/// The coarsest spacing of 32-bit floats a scan's coordinates may lie on, in its median edge
+/// lengths, before a load says the file has lost its detail.
+/// Why: a scan written as 32-bit floats far from its origin lies on f32's grid there (2^-23 of
+/// the coordinate: 0.5 at 5.3e6). Measured on the bunny (median edge 1.47e-3) moved in y and
+/// rounded to f32 (`decimate --ring-directions keep --threads 2`): at 1e3 (a grid of 0.04
+/// edges) 125 faces, at 3e3 (0.17) 139, as at its place (133); at 1e4 (0.69) 297 faces with 10
+/// pinched vertices; at 3e4 (1.3) 2,672 faces with 701 pinched; at a UTM place (a grid of 0.5,
+/// 799 of the median edge left) its first face degenerate, and thousands more.
+pub const F32_GRID_MAX_IN_EDGES: f64 = 0.25;
+
+/// When every coordinate of `positions` is exactly a 32-bit float (a file of f32: binary PLY
+/// or STL floats, or text written from them) and f32's spacing at the largest one exceeds
+/// [`F32_GRID_MAX_IN_EDGES`] of the median edge `median`: what that means, for the user.
+fn f32_grid_note(positions: &[DVec3], median: f64) -> Option<String> {
+    let far = positions.iter().fold(0.0f64, |m, p| m.max(p.abs().max_element()));
+    let far32 = far as f32;
+    let grid = (f32::from_bits(far32.to_bits() + 1) - far32) as f64;
+    if grid <= F32_GRID_MAX_IN_EDGES * median || !positions.iter().all(|p| p.to_array().iter().all(|&c| c as f32 as f64 == c)) {
+        return None;
+    }
+    Some(format!(
+        "its coordinates are all 32-bit floats, which {far} from the origin lie on a grid of {grid}, {:.2} of its median edge ({median:.3e}): the file has lost the scan's detail there (write it with 64-bit coordinates, or nearer the origin)",
+        grid / median
+    ))
 }
 
 /// The referenced vertices in input order (copies made by repair right after their input
@@ -404,7 +435,10 @@ fn prepare(path: &Path, mesh: Mesh, prep: &Preparation) -> Result<DenseMesh, Err
     let (positions, faces, input_index) = compact(&mesh.positions, &faces, &copies, &copy_positions);
     if !prep.repair {
         if let Some(fi) = faces.iter().position(|f| repair::is_degenerate(&positions, *f)) {
-            return Err(degenerate_err(path, faces[fi], fi, true));
+            // Coordinates rounded far from the origin make degenerate faces by the thousand: say
+            // so rather than suggest a repair that would drop them all.
+            let note = f32_grid_note(&positions, median_edge(&positions, &faces));
+            return Err(degenerate_err(path, faces[fi], fi, true, note));
         }
         if let Some((f, g)) = repair::first_duplicate(&faces) {
             return Err(input_err(path, format!("faces {f} and {g} are duplicates: the same three vertices (--repair drops duplicate faces)")));
@@ -412,6 +446,8 @@ fn prepare(path: &Path, mesh: Mesh, prep: &Preparation) -> Result<DenseMesh, Err
     }
     let (lo, hi) = bbox(positions.iter().copied());
     let extent_in_edges = check_extent(path, lo.distance(hi), &positions, &faces, &input_index)?;
+    let mut warnings = mesh.warnings;
+    warnings.extend(f32_grid_note(&positions, lo.distance(hi) / extent_in_edges).map(|n| format!("{}: {n}", path.display())));
     let centre = centre_for(lo, hi);
     let mut positions = positions;
     translate(&mut positions, -centre);
@@ -438,7 +474,7 @@ fn prepare(path: &Path, mesh: Mesh, prep: &Preparation) -> Result<DenseMesh, Err
         cleanup,
         extent_in_edges,
         centre,
-        warnings: mesh.warnings,
+        warnings,
     })
 }
 
@@ -858,6 +894,28 @@ mod tests {
         assert_eq!((m + far.centre) - far.centre, m);
         assert!(m.distance(0.5 * (far.positions[0] + far.positions[6])) < 1e-9);
         assert_eq!(on_world_grid(DVec3::new(0.1, -0.0, 3.0), DVec3::ZERO).to_array().map(f64::to_bits), [0.1f64, -0.0, 3.0].map(f64::to_bits));
+    }
+
+    #[test]
+    fn a_scan_of_32_bit_floats_far_off_is_said_to_have_lost_its_detail() {
+        // The grid (edges of 1) at 5e6, where f32's grid is 0.5 (half an edge): every
+        // coordinate an f32, so the file says so; at 1e6 (a grid of 0.0625) it does not, nor
+        // at 5e6 with a coordinate that is no f32 (a file of 64-bit values).
+        let at = |t: f64, nudge: f64| {
+            let mut m = grid_with_spike(1.0);
+            m.positions.iter_mut().for_each(|p| *p += DVec3::new(t, t, 0.0));
+            m.positions[0].x += nudge;
+            check_and_compact(Path::new("f32.ply"), m).unwrap().warnings
+        };
+        let w = at(5e6, 0.0);
+        assert!(w.len() == 1 && w[0].contains("f32.ply: its coordinates are all 32-bit floats, which 5000004 from the origin lie on a grid of 0.5, 0.50 of its median edge"), "{w:?}");
+        assert!(at(1e6, 0.0).is_empty());
+        assert!(at(5e6, 0.1).is_empty());
+        // Rounded to f32 far off, a fine scan's faces collapse: the error says why.
+        let mut fine = grid_with_spike(1.0);
+        fine.positions.iter_mut().for_each(|p| *p = (*p * 0.2 + DVec3::splat(5.3e6)).as_vec3().as_dvec3());
+        let e = check_and_compact(Path::new("utm.ply"), fine).unwrap_err().to_string();
+        assert!(e.contains("is degenerate") && e.contains("are all 32-bit floats") && !e.contains("--repair"), "{e}");
     }
 
     #[test]
