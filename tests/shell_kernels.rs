@@ -330,13 +330,7 @@ fn decimate_and_validate_with_backend_gpu_match_cpu() {
 
     // `--fine-loops` (the checks walk passing loops finer): the same bytes on both paths, and a
     // base that `validate --fine-loops --backend gpu` finds valid.
-    let mut fine = Vec::new();
-    for backend in ["cpu", "gpu"] {
-        let (b, m) = (dir.join(format!("fine-{backend}.obj")), dir.join(format!("fine-{backend}.map")));
-        let o = run(&["decimate", scan.to_str().unwrap(), "-o", b.to_str().unwrap(), "--map", m.to_str().unwrap(), "--backend", backend, "--fine-loops", "-q"]);
-        assert_eq!(o.status.code(), Some(0), "{backend} --fine-loops: {}", String::from_utf8_lossy(&o.stderr));
-        fine.push((std::fs::read(&b).unwrap(), std::fs::read(&m).unwrap()));
-    }
+    let fine = on_both_backends(&scan, &dir, "fine-", &["--fine-loops", "-q"]);
     assert!(fine[0] == fine[1], "--backend gpu --fine-loops must write the CPU path's bytes");
     let o = run(&["validate", scan.to_str().unwrap(), dir.join("fine-gpu.obj").to_str().unwrap(), "--backend", "gpu", "--fine-loops", "--json", j.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
@@ -371,6 +365,22 @@ fn bunny_and_horse_gpu_write_the_cpu_bytes() {
     }
 }
 
+/// Decimates `scan` with `--backend cpu` and `--backend gpu` and `extra` (exit 0 asserted), into
+/// `dir`/`{tag}{backend}.obj` and `.map`; returns their bytes, CPU first.
+fn on_both_backends(scan: &Path, dir: &Path, tag: &str, extra: &[&str]) -> Vec<(Vec<u8>, Vec<u8>)> {
+    ["cpu", "gpu"]
+        .iter()
+        .map(|backend| {
+            let (b, m) = (dir.join(format!("{tag}{backend}.obj")), dir.join(format!("{tag}{backend}.map")));
+            let mut args = vec!["decimate", scan.to_str().unwrap(), "-o", b.to_str().unwrap(), "--map", m.to_str().unwrap(), "--backend", backend];
+            args.extend_from_slice(extra);
+            let o = run(&args);
+            assert_eq!(o.status.code(), Some(0), "{backend} {extra:?}: {}", String::from_utf8_lossy(&o.stderr));
+            (std::fs::read(&b).unwrap(), std::fs::read(&m).unwrap())
+        })
+        .collect()
+}
+
 /// A scan in world coordinates (moved to the origin on load, its midpoints rounded to the
 /// world's grid: `mesh::centre_for`) on both backends, byte for byte, and valid where it lies:
 /// a level-4 bumpy icosphere (5,120 faces) at a UTM-like place, its coordinates rounded there.
@@ -382,13 +392,7 @@ fn a_world_coordinate_scan_gpu_writes_the_cpu_bytes() {
     let t = glam::DVec3::new(512_345.678_9, 5_300_000.123_4, 250.5);
     let scan = dir.join("utm.obj");
     write_obj(&scan, &v.iter().map(|&p| bumpy(p) + t).collect::<Vec<_>>(), &f);
-    let mut out = Vec::new();
-    for backend in ["cpu", "gpu"] {
-        let (b, m) = (dir.join(format!("{backend}.obj")), dir.join(format!("{backend}.map")));
-        let o = run(&["decimate", scan.to_str().unwrap(), "-o", b.to_str().unwrap(), "--map", m.to_str().unwrap(), "--backend", backend, "--threads", "2"]);
-        assert_eq!(o.status.code(), Some(0), "{backend}: {}", String::from_utf8_lossy(&o.stderr));
-        out.push((std::fs::read(&b).unwrap(), std::fs::read(&m).unwrap()));
-    }
+    let out = on_both_backends(&scan, &dir, "", &["--threads", "2"]);
     assert!(out[0] == out[1], "the GPU path writes the CPU path's base and map");
     let o = run(&["validate", scan.to_str().unwrap(), dir.join("gpu.obj").to_str().unwrap(), "--backend", "gpu"]);
     assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
