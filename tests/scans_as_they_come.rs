@@ -448,7 +448,8 @@ fn stl_binary_and_ascii_give_the_base_of_the_same_mesh_as_obj() {
         for &w in t {
             let p = v32[w as usize];
             p.iter().for_each(|c| bin.extend_from_slice(&c.to_le_bytes()));
-            ascii.push_str(&format!("  vertex {:e} {:e} {:e}\n", p[0], p[1], p[2]));
+            // The f32 values' own digits: ASCII is read in f64, as written.
+            ascii.push_str(&format!("  vertex {:e} {:e} {:e}\n", p[0] as f64, p[1] as f64, p[2] as f64));
         }
         bin.extend_from_slice(&[0u8; 2]);
         ascii.push_str(" endloop\nendfacet\n");

@@ -1,4 +1,4 @@
-//! STL input (binary and ASCII) through stl_io, as 3D scanners, phone scanning apps and
+//! STL input (binary and ASCII), as 3D scanners, phone scanning apps and
 //! 3D-printing tools write it: a triangle soup, one vertex per face corner, which the load's
 //! weld joins into a mesh (the report's `input_cleanup.welded_vertices` counts them; with
 //! `--no-weld` every triangle stays apart). Facet normals are not read: the winding decides.
@@ -7,7 +7,7 @@
 //! says (84 + 50 bytes a facet), whatever its first bytes — exporters write "solid …" into a
 //! binary header too, which would otherwise read as ASCII and fail; else ASCII when it starts
 //! with `solid` and is text; else a binary file whose size does not match is an error saying
-//! so. ASCII coordinates are read as f32 (stl_io's), as binary ones are stored.
+//! so. Binary STL through stl_io; ASCII STL read here, in f64 (stl_io keeps f32).
 
 use super::{input_err, Mesh};
 use crate::Error;
@@ -33,35 +33,29 @@ pub fn load_stl(path: &Path, bytes: Vec<u8>) -> Result<Mesh, Error> {
     // count's high byte below 16M facets, zeros in the normals and attributes).
     let text = !bytes[..bytes.len().min(BINARY_HEADER + BINARY_FACET)].contains(&0);
     let starts_solid = text && bytes.starts_with(b"solid") && bytes.get(5).is_none_or(|c| c.is_ascii_whitespace());
-    match binary {
-        // stl_io reads a file whose first line starts with "solid " as ASCII: a binary header
-        // that does is blanked (it is free text).
-        Some(_) => bytes[..5].copy_from_slice(b"     "),
-        None if starts_solid => {
-            // stl_io wants a name after "solid"; a bare "solid" line is valid STL too.
-            if bytes.get(5).is_none_or(|&c| c == b'\n' || c == b'\r') {
-                bytes.splice(5..5, *b" -");
-            }
-        }
-        None => {
-            let what = match bytes.get(80..84) {
-                Some(c) => format!(
-                    "a binary STL of {} facets is {} bytes, the file has {}",
-                    u32::from_le_bytes(c.try_into().unwrap()),
-                    BINARY_HEADER as u64 + u32::from_le_bytes(c.try_into().unwrap()) as u64 * BINARY_FACET as u64,
-                    bytes.len()
-                ),
-                None => format!("{} bytes are too few for a binary STL's 84-byte header", bytes.len()),
-            };
-            return Err(input_err(path, format!("not a valid STL file: not ASCII STL (text starting with 'solid'), and {what} (truncated?)")));
-        }
+    if binary.is_none() && starts_solid {
+        return load_ascii(path, &bytes);
     }
-    let kind = if binary.is_some() { "binary" } else { "ASCII" };
+    if binary.is_none() {
+        let what = match bytes.get(80..84) {
+            Some(c) => format!(
+                "a binary STL of {} facets is {} bytes, the file has {}",
+                u32::from_le_bytes(c.try_into().unwrap()),
+                BINARY_HEADER as u64 + u32::from_le_bytes(c.try_into().unwrap()) as u64 * BINARY_FACET as u64,
+                bytes.len()
+            ),
+            None => format!("{} bytes are too few for a binary STL's 84-byte header", bytes.len()),
+        };
+        return Err(input_err(path, format!("not a valid STL file: not ASCII STL (text starting with 'solid'), and {what} (truncated?)")));
+    }
+    // stl_io reads a file whose first line starts with "solid " as ASCII: a binary header that
+    // does is blanked (it is free text).
+    bytes[..5].copy_from_slice(b"     ");
     let mut cursor = std::io::Cursor::new(bytes);
-    let reader = stl_io::create_stl_reader(&mut cursor).map_err(|e| input_err(path, format!("not a valid {kind} STL file: {e}")))?;
+    let reader = stl_io::create_stl_reader(&mut cursor).map_err(|e| input_err(path, format!("not a valid binary STL file: {e}")))?;
     let mut mesh = Mesh::default();
     for (i, t) in reader.enumerate() {
-        let t = t.map_err(|e| input_err(path, format!("{kind} STL facet {i}: {e}")))?;
+        let t = t.map_err(|e| input_err(path, format!("binary STL facet {i}: {e}")))?;
         let first = mesh.positions.len() as u32;
         for v in t.vertices {
             let [x, y, z] = v.0;
@@ -70,7 +64,54 @@ pub fn load_stl(path: &Path, bytes: Vec<u8>) -> Result<Mesh, Error> {
         mesh.faces.push([first, first + 1, first + 2]);
     }
     if mesh.faces.is_empty() {
-        return Err(input_err(path, format!("the {kind} STL file has no facets")));
+        return Err(input_err(path, "the binary STL file has no facets"));
+    }
+    Ok(mesh)
+}
+
+/// ASCII STL, read here rather than by stl_io, which keeps its coordinates as f32: the text
+/// carries what its writer printed (a scan in world coordinates, written with all its digits,
+/// keeps them). `solid … endsolid` blocks (several in one file), each `facet` an `outer loop`
+/// of three or more `vertex` lines (more are fanned), facet normals not read; an error names
+/// the line.
+fn load_ascii(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
+    let text = std::str::from_utf8(bytes).map_err(|e| input_err(path, format!("ASCII STL that is not text: {e}")))?;
+    let mut mesh = Mesh::default();
+    let mut corners: Vec<u32> = Vec::new();
+    let mut in_loop = false;
+    for (n, line) in text.lines().enumerate() {
+        let err = |what: String| input_err(path, format!("ASCII STL line {}: {what}", n + 1));
+        let mut tok = line.split_whitespace();
+        match tok.next() {
+            None | Some("solid") | Some("endsolid") | Some("facet") | Some("endfacet") => {}
+            Some("outer") => {
+                corners.clear();
+                in_loop = true;
+            }
+            Some("vertex") if in_loop => {
+                let mut c = [0.0f64; 3];
+                for k in &mut c {
+                    let t = tok.next().ok_or_else(|| err("a vertex needs three coordinates".into()))?;
+                    *k = t.parse::<f64>().ok().filter(|x| x.is_finite()).ok_or_else(|| err(format!("'{t}' is not a finite number")))?;
+                }
+                corners.push(mesh.positions.len() as u32);
+                mesh.positions.push(DVec3::from_array(c));
+            }
+            Some("endloop") if in_loop => {
+                if corners.len() < 3 {
+                    return Err(err(format!("a facet with {} vertices", corners.len())));
+                }
+                mesh.faces.extend((2..corners.len()).map(|k| [corners[0], corners[k - 1], corners[k]]));
+                in_loop = false;
+            }
+            Some(w) => return Err(err(format!("'{w}' where a facet, a loop or a vertex was expected"))),
+        }
+    }
+    if in_loop {
+        return Err(input_err(path, "ASCII STL ends inside a facet (truncated?)"));
+    }
+    if mesh.faces.is_empty() {
+        return Err(input_err(path, "the ASCII STL file has no facets"));
     }
     Ok(mesh)
 }
@@ -127,6 +168,11 @@ mod tests {
         let e = load_stl(path, cut).unwrap_err().to_string();
         assert!(e.contains("square.stl") && e.contains("a binary STL of 2 facets is 184 bytes, the file has 174"), "{e}");
         let e = load_stl(path, format!("solid s\n{}  facet normal 0 0 1\n    outer loop\n      vertex 0 0 x\n", facet(&SQUARE[0])).into_bytes()).unwrap_err().to_string();
-        assert!(e.contains("ASCII STL facet 1"), "{e}");
+        assert!(e.contains("ASCII STL line 11: 'x' is not a finite number"), "{e}");
+        let e = load_stl(path, format!("solid s\n{}", &facet(&SQUARE[0])[..60]).into_bytes()).unwrap_err().to_string();
+        assert!(e.contains("ends inside a facet"), "{e}");
+        // ASCII keeps every digit written (f64), where binary holds f32.
+        let far = "solid utm\nfacet normal 0 0 1\nouter loop\nvertex 5300000.123 512345.678 1\nvertex 5300001.123 512345.678 1\nvertex 5300000.123 512346.678 1\nendloop\nendfacet\nendsolid utm\n";
+        assert_eq!(load_stl(path, far.as_bytes().to_vec()).unwrap().positions[0], DVec3::new(5300000.123, 512345.678, 1.0));
     }
 }
