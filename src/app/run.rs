@@ -337,9 +337,7 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         settings.obj_line()
     );
     // Written where the scan lies: moved back by what its load moved it (exact, see `mesh::centre_for`).
-    let mut world = base.positions.clone();
-    mesh::translate(&mut world, dense.centre);
-    let obj = mesh::obj_with_normals(&world, &base.directions, &base.faces, &header);
+    let obj = mesh::obj_with_normals(&mesh::translated(&base.positions, dense.centre), &base.directions, &base.faces, &header);
     let map_bytes = job.map.as_ref().map(|_| {
         let records = dense
             .dense_of_input
@@ -368,10 +366,8 @@ fn decimate_in_pool(job: &DecimateJob) -> Result<Report, Error> {
         .to_bytes()
     });
     let repaired_obj = job.repaired.as_ref().map(|p| {
-        let mut world = state.dense.pos.clone();
-        mesh::translate(&mut world, dense.centre);
         let text = mesh::obj_with_normals(
-            &world,
+            &mesh::translated(&state.dense.pos, dense.centre),
             &[],
             &state.dense.faces,
             &format!("{} as decimated by dispdec ({:?})", job.input.display(), job.preparation),
@@ -890,9 +886,7 @@ pub fn bake(job: &BakeJob) -> Result<BakeReport, Error> {
         map.atlas.size,
         loaded.settings.as_ref().map(|s| s.obj_line()).unwrap_or_default()
     );
-    let mut world = b.positions.clone();
-    mesh::translate(&mut world, scan.centre);
-    let obj = mesh::obj_with_uvs(&world, &b.directions, &b.faces, |f, k| map.atlas.uv_up(f, k), &header);
+    let obj = mesh::obj_with_uvs(&mesh::translated(&b.positions, scan.centre), &b.directions, &b.faces, |f, k| map.atlas.uv_up(f, k), &header);
     let side_json = serde_json::to_string_pretty(&side).expect("sidecar");
     mesh::write_all_atomic(&[
         (side_path.as_path(), side_json.as_bytes()),
@@ -945,8 +939,12 @@ pub fn reconstruct(
     warnings.extend(r.warnings);
     let b = &loaded.base;
     let map = crate::maps::bake::DispMap::read(disp, b.faces.len())?;
+    // The scan where it lies (the rebuilt mesh is in the base's coordinates), once for every level.
     let scan = match compare {
-        Some(p) => Some(mesh::load_scan(p, &r.preparation)?),
+        Some(p) => {
+            let s = mesh::load_scan(p, &r.preparation)?;
+            Some((s.world_positions(), s.faces))
+        }
         None => None,
     };
     let mut table = Vec::new();
@@ -956,8 +954,8 @@ pub fn reconstruct(
             continue;
         }
         let rebuilt = crate::maps::reconstruct::reconstruct(b, &map, level, r.normals);
-        if let Some(s) = &scan {
-            table.push(crate::maps::reconstruct::compare(&rebuilt, level, &s.world_positions(), &s.faces));
+        if let Some((pos, faces)) = &scan {
+            table.push(crate::maps::reconstruct::compare(&rebuilt, level, pos, faces));
         }
         last = Some(rebuilt);
     }

@@ -284,7 +284,7 @@ pub struct Snapshot {
     pub dense: DenseData,
     /// Where the scan was moved on load ([`DenseMesh::centre`]): new base positions (midpoint
     /// placements) are rounded to what the base file will hold ([`crate::mesh::on_world_grid`]).
-    pub world: DVec3,
+    pub centre: DVec3,
     // Base mesh.
     pub pos: Vec<DVec3>,
     pub dir: Vec<DVec3>,
@@ -376,7 +376,7 @@ impl State {
             loops: opts.loops,
             ring: opts.ring,
             dense: dd,
-            world: dense.centre,
+            centre: dense.centre,
             pos: dense.positions.clone(),
             dir: vec![DVec3::ZERO; nv],
             topo,
@@ -508,7 +508,7 @@ impl State {
         if a_bd != b_bd {
             Ok((he, vec![pu]))
         } else {
-            Ok((he, vec![pu, pw, crate::mesh::on_world_grid(0.5 * (pu + pw), self.world)]))
+            Ok((he, vec![pu, pw, crate::mesh::on_world_grid(0.5 * (pu + pw), self.centre)]))
         }
     }
 

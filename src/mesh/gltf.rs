@@ -93,7 +93,7 @@ pub fn load_gltf(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
                 if std::mem::replace(&mut seen[node.index()], true) {
                     return Err(input_err(path, format!("node {} appears twice in the scene (a glTF node has one parent at most)", node.index())));
                 }
-                let world = parent * DMat4::from_cols_array_2d(&node.transform().matrix().map(|c| c.map(|x| x as f64)));
+                let world = parent * local_transform(&node);
                 visit(&node, world, &mut mesh)?;
                 let at = stack.len();
                 stack.extend(node.children().map(|c| (c, world)));
@@ -102,7 +102,7 @@ pub fn load_gltf(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
         }
         None => {
             for node in document.nodes() {
-                visit(&node, DMat4::from_cols_array_2d(&node.transform().matrix().map(|c| c.map(|x| x as f64))), &mut mesh)?;
+                visit(&node, local_transform(&node), &mut mesh)?;
             }
         }
     }
@@ -113,6 +113,11 @@ pub fn load_gltf(path: &Path, bytes: &[u8]) -> Result<Mesh, Error> {
         return Err(input_err(path, "the glTF file has no triangles"));
     }
     Ok(mesh)
+}
+
+/// A node's own transform (relative to its parent), in f64.
+fn local_transform(node: &gltf::Node) -> DMat4 {
+    DMat4::from_cols_array_2d(&node.transform().matrix().map(|c| c.map(|x| x as f64)))
 }
 
 /// Whether accessor `a` can be read as it says: of the type its use needs (`typed`), not sparse,

@@ -63,9 +63,7 @@ pub struct DenseMesh {
 impl DenseMesh {
     /// The positions in the file's coordinates.
     pub fn world_positions(&self) -> Vec<DVec3> {
-        let mut p = self.positions.clone();
-        translate(&mut p, self.centre);
-        p
+        translated(&self.positions, self.centre)
     }
 }
 
@@ -125,7 +123,7 @@ impl<R: Read> Read for GzErrors<R> {
 /// The UTF-8 byte-order mark.
 const UTF8_BOM: &[u8] = b"\xef\xbb\xbf";
 
-/// Loads an OBJ or PLY file (plain or gzip-compressed) as written, without checks.
+/// Loads an OBJ, PLY, STL or glTF file (plain or gzip-compressed) as written, without checks.
 pub fn load_raw(path: &Path) -> Result<Mesh, Error> {
     let mut r = open_maybe_gz(path)?;
     let mut head = r.fill_buf().map_err(|e| input_err(path, e.to_string()))?;
@@ -143,22 +141,21 @@ pub fn load_raw(path: &Path) -> Result<Mesh, Error> {
     }
     let name = path.to_string_lossy().to_ascii_lowercase();
     let name = name.strip_suffix(".gz").unwrap_or(&name);
-    if name.ends_with(".glb") || name.ends_with(".gltf") || head.starts_with(b"glTF") {
-        let mut bytes = Vec::new();
-        r.read_to_end(&mut bytes).map_err(|e| input_err(path, e.to_string()))?;
-        return gltf::load_gltf(path, &bytes);
-    }
-    if name.ends_with(".stl") || head.starts_with(b"solid") {
-        let mut bytes = Vec::new();
-        r.read_to_end(&mut bytes).map_err(|e| input_err(path, e.to_string()))?;
-        return stl::load_stl(path, bytes);
-    }
-    if name.ends_with(".ply") {
+    let gltf = name.ends_with(".glb") || name.ends_with(".gltf") || head.starts_with(b"glTF");
+    let stl = !gltf && (name.ends_with(".stl") || head.starts_with(b"solid"));
+    if !gltf && !stl && name.ends_with(".ply") {
         return Err(input_err(path, "not a PLY file: the first line is not 'ply'"));
     }
+    // The other readers take the whole file.
     let mut bytes = Vec::new();
     r.read_to_end(&mut bytes).map_err(|e| input_err(path, e.to_string()))?;
-    obj::load_obj(path, &bytes)
+    if gltf {
+        gltf::load_gltf(path, &bytes)
+    } else if stl {
+        stl::load_stl(path, bytes)
+    } else {
+        obj::load_obj(path, &bytes)
+    }
 }
 
 /// Loads and checks a dense input mesh with the default preparation (welded, not repaired).
@@ -266,9 +263,9 @@ fn farthest_from_median(positions: &[DVec3]) -> usize {
 
 /// The scan's extent is within [`MAX_EXTENT_IN_EDGES`] of its median edge: no stray vertex far
 /// off sets dmax and the checks' tolerances out of all proportion to its detail.
-/// `diag` is the box's diagonal; returns the span.
-fn check_extent(path: &Path, diag: f64, positions: &[DVec3], faces: &[[u32; 3]], input_index: &[u32]) -> Result<f64, Error> {
-    let ratio = diag / median_edge(positions, faces);
+/// `diag` is the box's diagonal, `median` the median edge ([`median_edge`]); returns the span.
+fn check_extent(path: &Path, diag: f64, median: f64, positions: &[DVec3], input_index: &[u32]) -> Result<f64, Error> {
+    let ratio = diag / median;
     if ratio <= MAX_EXTENT_IN_EDGES {
         return Ok(ratio);
     }
@@ -333,6 +330,13 @@ pub fn translate(points: &mut [DVec3], by: DVec3) {
     if by != DVec3::ZERO {
         points.iter_mut().for_each(|p| *p += by);
     }
+}
+
+/// A copy of `points` moved by `by` ([`translate`]).
+pub fn translated(points: &[DVec3], by: DVec3) -> Vec<DVec3> {
+    let mut p = points.to_vec();
+    translate(&mut p, by);
+    p
 }
 
 /// `hint`: name `--repair`; `note`: why the faces collapsed ([`f32_grid_note`]), said instead.
@@ -432,7 +436,7 @@ fn prepare(path: &Path, mesh: Mesh, prep: &Preparation) -> Result<DenseMesh, Err
             return Err(input_err(path, "no faces are left after --repair"));
         }
     }
-    let (positions, faces, input_index) = compact(&mesh.positions, &faces, &copies, &copy_positions);
+    let (mut positions, faces, input_index) = compact(&mesh.positions, &faces, &copies, &copy_positions);
     if !prep.repair {
         if let Some(fi) = faces.iter().position(|f| repair::is_degenerate(&positions, *f)) {
             // Coordinates rounded far from the origin make degenerate faces by the thousand: say
@@ -445,11 +449,11 @@ fn prepare(path: &Path, mesh: Mesh, prep: &Preparation) -> Result<DenseMesh, Err
         }
     }
     let (lo, hi) = bbox(positions.iter().copied());
-    let extent_in_edges = check_extent(path, lo.distance(hi), &positions, &faces, &input_index)?;
+    let median = median_edge(&positions, &faces);
+    let extent_in_edges = check_extent(path, lo.distance(hi), median, &positions, &input_index)?;
     let mut warnings = mesh.warnings;
-    warnings.extend(f32_grid_note(&positions, lo.distance(hi) / extent_in_edges).map(|n| format!("{}: {n}", path.display())));
+    warnings.extend(f32_grid_note(&positions, median).map(|n| format!("{}: {n}", path.display())));
     let centre = centre_for(lo, hi);
-    let mut positions = positions;
     translate(&mut positions, -centre);
     let topology = topology_checked(path, &positions, &faces, &input_index, prep, cleanup.welded_vertices)?;
     repair::count_components(&faces, &mut cleanup);

@@ -26,8 +26,7 @@ fn binary_facets(bytes: &[u8]) -> Option<usize> {
 }
 
 /// Reads an STL file's bytes (already unzipped) into a [`Mesh`]: one vertex per face corner.
-pub fn load_stl(path: &Path, bytes: Vec<u8>) -> Result<Mesh, Error> {
-    let mut bytes = bytes;
+pub fn load_stl(path: &Path, mut bytes: Vec<u8>) -> Result<Mesh, Error> {
     let binary = binary_facets(&bytes);
     // Text has no NUL byte; a binary STL's header and first facet nearly always do (the facet
     // count's high byte below 16M facets, zeros in the normals and attributes).
